@@ -1,0 +1,35 @@
+// flexid: the command line of the flexid lab service. Errors become exit codes here and
+// only here: 0 success, 1 the operation failed, 2 bad usage or bad input.
+#include <CLI/CLI.hpp>
+#include <iostream>
+
+#include "clients/cli/command.h"
+#include "flexid/version.h"
+#include "model/errors.h"
+
+int main(int argc, char** argv) {
+  CLI::App app{"flexid: identify, simulate and diagnose models of ionic soft actuators"};
+  app.set_version_flag("--version", flexid::kVersion);
+  app.require_subcommand(1);
+  flexid::cli::RegisterTfCommand(app);
+  flexid::cli::RegisterSimulateCommand(app);
+  flexid::cli::RegisterPhysicsCommand(app);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::Success& e) {
+    return app.exit(e);
+  } catch (const CLI::ParseError& e) {
+    app.exit(e);
+    return 2;
+  } catch (const flexid::cli::UsageError& e) {
+    std::cerr << "flexid: " << e.what() << '\n';
+    return 2;
+  } catch (const flexid::model::InputError& e) {
+    std::cerr << "flexid: " << e.what() << '\n';
+    return 2;
+  } catch (const std::exception& e) {
+    std::cerr << "flexid: " << e.what() << '\n';
+    return 1;
+  }
+  return 0;
+}

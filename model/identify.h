@@ -1,0 +1,103 @@
+// Identification of one continuous-time transfer function with dead time from sampled
+// data, the seed's Eq. (18):
+//
+//   G(s) = e^{-T s} (b0 s^m + ... + b_m) / (s^n + a1 s^{n-1} + ... + a_n),  m < n.
+//
+// Method (each stage's output is the next stage's start):
+//  1. Coarse dead time: discrete ARX(n, n+1) least squares for every whole-sample delay
+//     d in [0, max_delay]; the d with the least residual is floor(T / dt).
+//  2. Linear initial estimate at that d: ARX, then Steiglitz-McBride iterations (least
+//     squares on data prefiltered by 1/A(q) of the previous iterate), which converge
+//     towards the output-error estimate; every least-squares problem is solved by QR on
+//     the regressors (the normal equations of a slow output at 10 Hz are too ill-
+//     conditioned to keep the slow poles). Discrete poles map exactly to continuous ones
+//     (s = ln z / dt under the zero-order hold); unstable ones are reflected.
+//  3. Numerator and fractional delay: with the poles fixed, the output is linear in
+//     b0..b_m, so b is solved by least squares at a few fractions of a sample and the best
+//     fraction is kept.
+//  4. Output-error refinement (Ceres, Levenberg-Marquardt) of b, the poles and T jointly,
+//     through the exact ZOH simulation (discretise.h). The Jacobian is analytic: with
+//     x = states of 1/A(s) driven by u(t - T) and z = states of 1/A(s) driven by yhat,
+//     dyhat/db_j = s^{m-j}/A u = x_{m-j},  dyhat/da_i = -s^{n-i}/A yhat = -z_{n-i},
+//     dyhat/dT = -d yhat/dt; all from ONE exact simulation of the 2n-state system [x; z].
+//     The denominator is a product of quadratics s^2 + c1 s + c0 (and one s + c for odd n)
+//     with c = exp(parameter) > 0, so every iterate is stable (stability enforced).
+//  5. Uncertainty: covariance sigma^2 (J^T J)^{-1} in the coefficients (b, a, T), with
+//     sigma^2 = SSR / (N - p); 95 % half-widths 1.96 sigma_i; DC gain and poles by the
+//     delta method (dp/da_i = -p^{n-i} / A'(p)). These assume white residuals: check the
+//     whiteness test before trusting the digits.
+//
+// Data: one or more segments on uniform grids of one sample period. Each segment starts
+// in steady state under its initial_voltage_V (0 V: at rest); samples before
+// `fit_begin` are simulated but not fitted (a lead-in). Segments that share a voltage
+// level are fitted jointly: one model, all residuals.
+#pragma once
+
+#include <span>
+#include <string>
+#include <vector>
+
+#include "model/residual_tests.h"
+#include "model/transfer_function.h"
+
+namespace flexid::model {
+
+struct IdentifyOptions {
+  int num_zeros = 3;           // m
+  int num_poles = 4;           // n (> m)
+  bool estimate_delay = true;  // false: use fixed_delay_s
+  double fixed_delay_s = 0.0;
+  double max_delay_s = 10.0;  // coarse search range [0, max_delay_s]
+  int max_iterations = 50;    // Levenberg-Marquardt iterations
+  int correlation_lags = 25;  // residual tests
+  bool IsValid(std::string* error) const;
+};
+
+struct DataSegment {
+  double dt_s = 0.0;
+  std::vector<double> voltage_V;
+  std::vector<double> deflection_mm;
+  size_t fit_begin = 0;            // samples [0, fit_begin) are lead-in: simulated, not fitted
+  double initial_voltage_V = 0.0;  // held before the first sample (steady state under it)
+};
+
+struct ParameterEstimate {
+  std::string name;
+  double value = 0.0;
+  double half_width_95 = 0.0;  // +inf when not determined by the data
+};
+
+struct PoleEstimate {
+  double re = 0.0, im = 0.0;
+  double re_half_width_95 = 0.0, im_half_width_95 = 0.0;
+};
+
+struct FitFigures {
+  size_t samples = 0;
+  double fit_percent = 0.0;
+  double rmse_mm = 0.0;
+  WhitenessTest whiteness;
+  CrossCorrelationTest cross_correlation;
+};
+
+struct TfEstimate {
+  TransferFunction tf;
+  std::vector<ParameterEstimate> coefficients;  // b0..b_m, a1..a_n, delay_s
+  ParameterEstimate dc_gain;
+  std::vector<PoleEstimate> poles;
+  FitFigures fit;
+  double noise_std_mm = 0.0;  // sqrt(SSR / (N - p))
+  int iterations = 0;
+  std::string solver_report;  // one line from Ceres
+};
+
+// Throws InputError for unusable data (too short, constant input, non-finite values,
+// unequal sample periods) and std::invalid_argument for invalid options.
+TfEstimate IdentifyTransferFunction(const std::vector<DataSegment>& segments,
+                                    const IdentifyOptions& options = {});
+
+// Fit figures of any model on segments (the validation figures).
+FitFigures EvaluateFit(const TransferFunction& tf, const std::vector<DataSegment>& segments,
+                       int correlation_lags = 25);
+
+}  // namespace flexid::model

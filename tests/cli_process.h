@@ -1,0 +1,47 @@
+// Runs a flexid executable as a child process and captures its output, for end-to-end
+// tests of the command line (scratch directories: scratch_dir.h).
+#pragma once
+
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <array>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+
+namespace flexid::testing {
+
+struct ProcessResult {
+  int exit_code = -1;
+  std::string out;
+  std::string err;
+};
+
+// Runs `command` with /bin/sh; stderr is captured through a file in `scratch`.
+inline ProcessResult RunCommand(const std::string& command, const std::filesystem::path& scratch) {
+  const auto err_path = scratch / "stderr.txt";
+  ProcessResult result;
+  FILE* pipe = popen((command + " 2>'" + err_path.string() + "'").c_str(), "r");
+  if (!pipe) return result;
+  std::array<char, 4096> buffer;
+  size_t n;
+  while ((n = fread(buffer.data(), 1, buffer.size(), pipe)) > 0)
+    result.out.append(buffer.data(), n);
+  const int status = pclose(pipe);
+  result.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  std::ifstream err(err_path);
+  std::stringstream text;
+  text << err.rdbuf();
+  result.err = text.str();
+  return result;
+}
+
+inline void WriteFile(const std::filesystem::path& path, const std::string& text) {
+  std::ofstream(path) << text;
+}
+
+}  // namespace flexid::testing

@@ -1,0 +1,118 @@
+// End-to-end tests of the flexid command line: the real binary, real files.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <nlohmann/json.hpp>
+
+#include "cli_process.h"
+#include "scratch_dir.h"
+
+namespace flexid {
+namespace {
+
+using testing::RunCommand;
+using testing::ScratchDir;
+using testing::WriteFile;
+
+const std::string kFlexid = FLEXID_BINARY;
+const std::string kExamples = std::string(FLEXID_SOURCE_DIR) + "/examples";
+
+class Cli : public ::testing::Test {
+ protected:
+  testing::ProcessResult Run(const std::string& args) {
+    return RunCommand(kFlexid + " " + args, scratch_.path());
+  }
+  ScratchDir scratch_;
+};
+
+TEST_F(Cli, TfShowJsonGivesTheSeed8VPolesAndGain) {
+  const auto r = Run("tf show " + kExamples + "/seed-8V.json --json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const auto doc = nlohmann::json::parse(r.out);
+  EXPECT_NEAR(doc["dc_gain"].get<double>(), 1.97 / 0.2275, 1e-12);
+  ASSERT_EQ(doc["poles"].size(), 4u);
+  ASSERT_EQ(doc["zeros"].size(), 3u);
+  // The lightly damped pair: |p| = sqrt(b5-free part) ~ 19.16 rad/s, damping ~ 0.013.
+  bool found_pair = false;
+  for (const auto& mode : doc["modes"]) {
+    if (!mode["oscillatory"].get<bool>()) continue;
+    found_pair = true;
+    EXPECT_NEAR(mode["natural_frequency_rad_s"].get<double>(), 19.16, 0.01);
+    EXPECT_NEAR(mode["damping_ratio"].get<double>(), 0.0133, 0.0002);
+  }
+  EXPECT_TRUE(found_pair);
+}
+
+TEST_F(Cli, TfShowHumanOutputNamesTheFigures) {
+  const auto r = Run("tf show " + kExamples + "/seed-8V.json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  for (const char* word :
+       {"DC gain: 8.65934", "dead time: 3.67 s", "damping", "zeros:", "real, negative poles"})
+    EXPECT_NE(r.out.find(word), std::string::npos) << word << "\n" << r.out;
+}
+
+TEST_F(Cli, TfShowTsModelListsLocalModels) {
+  const auto r = Run("tf show " + kExamples + "/seed-ts.json --json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const auto doc = nlohmann::json::parse(r.out);
+  ASSERT_EQ(doc["local_models"].size(), 2u);
+  EXPECT_EQ(doc["local_models"][1]["level_V"].get<double>(), 8.0);
+}
+
+TEST_F(Cli, SimulateWritesPredictionsAndFit) {
+  // A recording made from the 2 V model itself: simulate must reproduce it (fit ~100 %).
+  const auto voltage_only = scratch_.path() / "volts.csv";
+  std::string text = "t_s,voltage_V\n";
+  for (int k = 0; k < 3000; ++k)
+    text += std::to_string(0.1 * k) + "," + (k % 1000 < 500 ? "2" : "0") + "\n";
+  WriteFile(voltage_only, text);
+  auto r = Run("simulate --model " + kExamples + "/seed-2V.json " + voltage_only.string());
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(r.out.rfind("t_s,voltage_V,predicted_mm\n", 0), 0u);
+  EXPECT_EQ(std::count(r.out.begin(), r.out.end(), '\n'), 3001);
+  // Feed the predictions back as a recording with a deflection column.
+  std::string recording = "t_s,voltage_V,deflection_mm\n" + r.out.substr(r.out.find('\n') + 1);
+  WriteFile(scratch_.path() / "rec.csv", recording);
+  r = Run("simulate --model " + kExamples + "/seed-2V.json " +
+          (scratch_.path() / "rec.csv").string() + " --out " +
+          (scratch_.path() / "pred.csv").string());
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("wrote 3000 predictions"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("fit 100 %"), std::string::npos) << r.out;
+  EXPECT_TRUE(std::filesystem::exists(scratch_.path() / "pred.csv"));
+}
+
+TEST_F(Cli, BadInputExitsTwoWithOneLineNamingTheProblem) {
+  WriteFile(scratch_.path() / "bad.csv", "t_s,voltage_V\n0,1\n0.1,abc\n");
+  auto r = Run("simulate --model " + kExamples + "/seed-2V.json " +
+               (scratch_.path() / "bad.csv").string());
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("bad.csv:3:"), std::string::npos) << r.err;
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+
+  WriteFile(scratch_.path() / "bad.json",
+            R"({"format": "flexid.model/1", "kind": "tf", "num": [1], "den": [0]})");
+  r = Run("tf show " + (scratch_.path() / "bad.json").string());
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("bad.json"), std::string::npos) << r.err;
+
+  r = Run("tf show " + (scratch_.path() / "missing.json").string());
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("missing.json"), std::string::npos) << r.err;
+
+  r = Run("simulate " + (scratch_.path() / "bad.csv").string());  // --model missing
+  EXPECT_EQ(r.exit_code, 2);
+  r = Run("no-such-command");
+  EXPECT_EQ(r.exit_code, 2);
+}
+
+TEST_F(Cli, HelpOnEveryCommandHasAnExample) {
+  for (const char* command : {"tf show", "simulate", "physics"}) {
+    const auto r = Run(std::string(command) + " --help");
+    EXPECT_EQ(r.exit_code, 0) << command;
+    EXPECT_NE(r.out.find("Example"), std::string::npos) << command << "\n" << r.out;
+  }
+}
+
+}  // namespace
+}  // namespace flexid

@@ -1,0 +1,152 @@
+#include "model/simulate.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "model/presets.h"
+#include "test_util.h"
+
+namespace flexid::model {
+namespace {
+
+using testing::ExpectVectorsNear;
+using testing::IntegrateRk4;
+using testing::MaxAbsDifference;
+
+// Piecewise-constant voltage: a new random level every `hold` samples.
+std::vector<double> RandomStaircase(size_t count, size_t hold, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> level(-8.0, 8.0);
+  std::vector<double> u(count);
+  double value = 0.0;
+  for (size_t k = 0; k < count; ++k) {
+    if (k % hold == 0) value = level(rng);
+    u[k] = value;
+  }
+  return u;
+}
+
+// Zero-order-hold input function over a grid, for the RK4 reference.
+auto HeldInput(const std::vector<double>& t_s, const std::vector<double>& u) {
+  return [&t_s, &u](double t) {
+    auto it = std::upper_bound(t_s.begin(), t_s.end(), t);
+    return it == t_s.begin() ? 0.0 : u[static_cast<size_t>(it - t_s.begin()) - 1];
+  };
+}
+
+TEST(Simulate, ExactZohMatchesFineStepIntegrationOnAUniformGrid) {
+  // The 8 V seed model has a lightly damped 19 rad/s mode, the hardest case for a
+  // discretisation. RK4 at 1 ms has a local error ~ (19e-3)^5 per step: far below 1e-7.
+  TransferFunction tf = SeedModel8V();
+  tf.delay_s = 0.0;
+  const double dt_s = 0.1;
+  const std::vector<double> u = RandomStaircase(600, 7, 1);
+  std::vector<double> t_s(u.size());
+  for (size_t k = 0; k < t_s.size(); ++k) t_s[k] = dt_s * static_cast<double>(k);
+  const auto exact = Simulate(tf, t_s, u);
+  const auto reference = IntegrateRk4(tf, t_s, HeldInput(t_s, u), 1e-3);
+  EXPECT_LT(MaxAbsDifference(exact, reference), 1e-7);
+}
+
+TEST(Simulate, NonUniformGridMatchesFineStepIntegration) {
+  TransferFunction tf = SeedModel2V();
+  tf.delay_s = 0.0;
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> step(0.01, 0.5);
+  std::vector<double> t_s = {0.0};
+  while (t_s.size() < 800) t_s.push_back(t_s.back() + step(rng));
+  const std::vector<double> u = RandomStaircase(t_s.size(), 5, 2);
+  double dt = 0.0;
+  ASSERT_FALSE(IsUniformGrid(t_s, &dt));
+  const auto exact = Simulate(tf, t_s, u);
+  const auto reference = IntegrateRk4(tf, t_s, HeldInput(t_s, u), 1e-3);
+  EXPECT_LT(MaxAbsDifference(exact, reference), 1e-7);
+}
+
+TEST(Simulate, FractionalDeadTimeOnFirstOrderIsAnalytic) {
+  // K / (tau s + 1) e^{-T s}, unit step at t = 0: y = K (1 - exp(-(t - T)/tau)) for t >= T.
+  const double gain = 3.0, tau_s = 2.0, delay_s = 0.237, dt_s = 0.1;
+  const TransferFunction tf{{gain}, {tau_s, 1.0}, delay_s};
+  const auto y = SimulateUniform(tf, dt_s, std::vector<double>(100, 1.0));
+  for (size_t k = 0; k < y.size(); ++k) {
+    const double t = dt_s * static_cast<double>(k);
+    const double expected = t < delay_s ? 0.0 : gain * (1.0 - std::exp(-(t - delay_s) / tau_s));
+    EXPECT_NEAR(y[k], expected, 1e-12) << "t = " << t;
+  }
+}
+
+TEST(Simulate, FractionalDeadTimeShiftsTheResponseByExactlyThatTime) {
+  // A delay of 23.7 samples: the delayed response on the grid equals the undelayed step
+  // response at t - T, evaluated independently on the shifted grid by the any-grid engine.
+  TransferFunction delayed = SeedModel8V();
+  const double dt_s = 0.1;
+  delayed.delay_s = 2.37;
+  TransferFunction undelayed = delayed;
+  undelayed.delay_s = 0.0;
+  const size_t count = 2000;
+  const auto y = SimulateUniform(delayed, dt_s, std::vector<double>(count, 1.0));
+  std::vector<double> shifted_t_s;
+  for (size_t k = 0; k < count; ++k) {
+    const double t = dt_s * static_cast<double>(k) - delayed.delay_s;
+    if (t >= 0.0) shifted_t_s.push_back(t);
+  }
+  const auto reference = StepResponse(undelayed, shifted_t_s);
+  const size_t first = count - shifted_t_s.size();
+  for (size_t k = 0; k < first; ++k) EXPECT_EQ(y[k], 0.0) << "before the dead time, k = " << k;
+  for (size_t k = first; k < count; ++k)
+    ASSERT_NEAR(y[k], reference[k - first], 1e-9 * DcGain(undelayed)) << "k = " << k;
+}
+
+TEST(Simulate, IntegralDeadTimeIsAPureShiftOfSamples) {
+  TransferFunction tf = SeedModel2V();
+  tf.delay_s = 0.0;
+  const std::vector<double> u = RandomStaircase(500, 9, 3);
+  const auto y0 = SimulateUniform(tf, 0.1, u);
+  tf.delay_s = 0.3;  // exactly three samples
+  const auto y3 = SimulateUniform(tf, 0.1, u);
+  for (size_t k = 3; k < u.size(); ++k) ASSERT_NEAR(y3[k], y0[k - 3], 1e-12);
+}
+
+TEST(Simulate, StreamingEngineAgreesWithTheUniformFastPath) {
+  const TransferFunction tf = SeedModel8V();  // 3.67 s = 36.7 samples of dead time
+  const std::vector<double> u = RandomStaircase(3000, 11, 4);
+  const auto fast = SimulateUniform(tf, 0.1, u);
+  StreamingSimulator streaming(SingleRule(tf));
+  std::vector<double> slow;
+  for (size_t k = 0; k < u.size(); ++k)
+    slow.push_back(streaming.Step(0.1 * static_cast<double>(k), u[k]));
+  EXPECT_LT(MaxAbsDifference(fast, slow), 1e-9);
+}
+
+TEST(Simulate, StartsInSteadyStateWhenAsked) {
+  const TransferFunction tf = SeedModel2V();
+  const auto y =
+      SimulateUniform(tf, 0.1, std::vector<double>(200, 4.0), {.start_in_steady_state = true});
+  for (double value : y) ASSERT_NEAR(value, 4.0 * DcGain(tf), 1e-9);
+}
+
+TEST(Simulate, ProperModelFeedthroughUsesTheDelayedInput) {
+  // G = 2 e^{-0.15 s} (pure gain with delay): y(t) = 2 u(t - 0.15).
+  const TransferFunction gain{{2.0}, {1.0}, 0.15};
+  const std::vector<double> u = {1, 2, 3, 4, 5};
+  const auto y = SimulateUniform(gain, 0.1, u);
+  ExpectVectorsNear(y, {0, 0, 2, 4, 6}, 1e-12);
+}
+
+TEST(Simulate, RejectsBadSeries) {
+  const TransferFunction tf = SeedModel2V();
+  const std::vector<double> t_s = {0.0, 0.1, 0.1};
+  const std::vector<double> u = {0.0, 1.0, 1.0};
+  EXPECT_THROW(Simulate(tf, t_s, u), std::invalid_argument);
+  const std::vector<double> t_ok = {0.0, 0.1, 0.2};
+  const std::vector<double> u_nan = {0.0, NAN, 1.0};
+  EXPECT_THROW(Simulate(tf, t_ok, u_nan), std::invalid_argument);
+  const std::vector<double> u_short = {0.0};
+  EXPECT_THROW(Simulate(tf, t_ok, u_short), std::invalid_argument);
+  EXPECT_THROW(SimulateUniform(tf, 0.0, u), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace flexid::model
