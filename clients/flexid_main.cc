@@ -14,6 +14,7 @@ int main(int argc, char** argv) {
   flexid::cli::RegisterTfCommand(app);
   flexid::cli::RegisterSimulateCommand(app);
   flexid::cli::RegisterPhysicsCommand(app);
+  flexid::cli::RegisterIdentifyCommand(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::Success& e) {

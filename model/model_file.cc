@@ -13,6 +13,10 @@
 namespace flexid::model {
 namespace {
 
+constexpr const char* kSchedulingChoices =
+    "expected \"abs_voltage\", \"voltage\" or \"abs_voltage_held\"";
+
+
 using nlohmann::json;
 using nlohmann::ordered_json;
 
@@ -308,12 +312,15 @@ class DocumentReader {
     const json& scheduling = RequiredObject(
         Required(root, "scheduling", "", "expected an object with memberships"), "/scheduling");
     if (const auto it = scheduling.find("variable"); it != scheduling.end()) {
-      const std::string name =
-          String(*it, "/scheduling/variable", "expected \"abs_voltage\" or \"voltage\"");
+      const std::string name = String(*it, "/scheduling/variable", kSchedulingChoices);
       if (!ParseSchedulingVariable(name, &model.scheduling)) {
-        Fail("/scheduling/variable", "unknown scheduling variable " + Quoted(name) +
-                                         " (expected \"abs_voltage\" or \"voltage\")");
+        Fail("/scheduling/variable", "unknown scheduling variable " + Quoted(name) + " (" +
+                                         kSchedulingChoices + ")");
       }
+    }
+    if (const auto it = scheduling.find("rest_band_V"); it != scheduling.end()) {
+      model.rest_band_V = FiniteNumber(*it, "/scheduling/rest_band_V");
+      if (model.rest_band_V < 0.0) Fail("/scheduling/rest_band_V", "expected a number >= 0");
     }
     const json& memberships = Required(scheduling, "memberships", "/scheduling",
                                        "expected one membership per local model");
@@ -465,7 +472,7 @@ ordered_json OrderedForWriting(const json& document) {
     }
   }
   if (const auto it = document.find("scheduling"); it != document.end() && it->is_object()) {
-    out["scheduling"] = Ordered(*it, {"variable", "memberships"});
+    out["scheduling"] = Ordered(*it, {"variable", "rest_band_V", "memberships"});
     if (const auto m = it->find("memberships"); m != it->end() && m->is_array()) {
       for (std::size_t i = 0; i < m->size(); ++i) {
         out["scheduling"]["memberships"][i] = Ordered((*m)[i], {"shape", "params"});
@@ -522,6 +529,8 @@ json ModelToJson(const ModelDocument& document) {
     out["local_models"] = std::move(local_models);
     out["scheduling"] = {{"variable", SchedulingVariableName(model.scheduling)},
                          {"memberships", std::move(memberships)}};
+    if (model.scheduling == SchedulingVariable::kAbsVoltageHeld)
+      out["scheduling"]["rest_band_V"] = model.rest_band_V;
   }
   if (!document.augmentations.empty()) {
     json augmentations = json::array();

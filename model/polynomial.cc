@@ -51,6 +51,27 @@ std::vector<double> PolynomialFromRoots(const std::vector<std::complex<double>>&
   return real;
 }
 
+std::vector<std::vector<double>> RealFactors(const std::vector<double>& coefficients) {
+  const std::vector<std::complex<double>> roots = PolynomialRoots(coefficients);
+  std::vector<double> real;
+  std::vector<std::vector<double>> quadratics;
+  for (const auto& r : roots) {
+    if (std::abs(r.imag()) <= 1e-12 * std::max(1.0, std::abs(r))) {
+      real.push_back(r.real());
+    } else if (r.imag() > 0.0) {
+      quadratics.push_back({1.0, -2.0 * r.real(), std::norm(r)});
+    }
+  }
+  std::sort(real.begin(), real.end(), [](double a, double b) { return std::abs(a) < std::abs(b); });
+  size_t i = 0;
+  for (; i + 1 < real.size(); i += 2)
+    quadratics.push_back({1.0, -(real[i] + real[i + 1]), real[i] * real[i + 1]});
+  std::sort(quadratics.begin(), quadratics.end(),
+            [](const auto& a, const auto& b) { return a[2] < b[2]; });
+  if (i < real.size()) quadratics.push_back({1.0, -real[i]});
+  return quadratics;
+}
+
 std::vector<double> MultiplyPolynomials(const std::vector<double>& a,
                                         const std::vector<double>& b) {
   if (a.empty() || b.empty()) return {};

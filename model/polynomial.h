@@ -24,6 +24,15 @@ std::vector<double> MultiplyPolynomials(const std::vector<double>& a, const std:
 // Sum aligned at the constant term.
 std::vector<double> AddPolynomials(const std::vector<double>& a, const std::vector<double>& b);
 
+// Monic real factors of a polynomial of degree n: one quadratic s^2 + c1 s + c0 per
+// complex-conjugate pair, real roots paired by magnitude into quadratics, and one linear
+// factor s + c when n is odd. Every polynomial of degree n gets the same structure
+// (n / 2 quadratics, then n % 2 linear), so factors of different polynomials can be put
+// side by side; quadratics are ordered by c0 ascending (slowest first). A polynomial with
+// all roots in the open left half-plane has all factor coefficients > 0, and then so has
+// any convex combination of corresponding factors.
+std::vector<std::vector<double>> RealFactors(const std::vector<double>& coefficients);
+
 // Drops leading coefficients that are exactly zero (keeps at least one coefficient).
 std::vector<double> TrimLeadingZeros(const std::vector<double>& coefficients);
 

@@ -32,22 +32,37 @@ void CheckSeries(std::span<const double> t_s, std::span<const double> voltage_V)
 }
 
 // Scheduling value used to pick the operating point (see kSchedulingResolution_V).
-double OperatingZ(const TsModel& model, double voltage_V) {
-  return std::round(SchedulingValue(model, voltage_V) / kSchedulingResolution_V) *
-         kSchedulingResolution_V;
+double OperatingZ(Scheduler& scheduler, double voltage_V) {
+  return std::round(scheduler.Next(voltage_V) / kSchedulingResolution_V) * kSchedulingResolution_V;
 }
 
 // The frozen model at one scheduling value, realised (state_space.h).
 struct OperatingPoint {
   std::vector<double> mu;
   StateSpace ss;
+  // Markov parameters h0..h_{n-1}: state i is y^(i) - h_i u while the input holds still.
+  Eigen::VectorXd remap;
 };
 
 OperatingPoint OperatingPointAt(const TsModel& model, double z) {
   OperatingPoint op;
   NormalisedMemberships(model, z, &op.mu);
-  op.ss = RealiseOutputDerivativeForm(BlendedTransferFunction(model, op.mu));
+  const TransferFunction frozen = BlendedTransferFunction(model, op.mu);
+  op.ss = RealiseOutputDerivativeForm(frozen);
+  op.remap = MarkovParameters(frozen).head(op.ss.A.rows());
   return op;
+}
+
+// At a change of operating point the state is re-expressed so that the output and its
+// derivatives stay continuous: with the input held, x_i = y^(i) - h_i u_d in each frozen
+// model, so x_new = x_old + h_old u_d,old - h_new u_d,new (u_d: the delayed input each
+// model sees now). Without this, local models whose Markov parameters differ would make
+// the implied derivatives jump at every switch. Applied in two halves (leave the old
+// point, enter the new one) so that no reference to the old point is needed after the
+// new one is looked up.
+template <typename Vec>
+void AddMarkovTerm(const Eigen::VectorXd& h, double u_delayed, double sign, Vec* x) {
+  for (Eigen::Index i = 0; i < x->size(); ++i) (*x)(i) += sign * h(i) * u_delayed;
 }
 
 // State under a voltage u0 held forever: A x + B u0 = 0.
@@ -78,6 +93,7 @@ struct UniformEntry {
   long delay_samples = 0;
   bool fractional = false;
   std::vector<double> mu;
+  Eigen::VectorXd remap;
 };
 
 template <int N>
@@ -92,6 +108,7 @@ UniformEntry<N> MakeUniformEntry(const TsModel& model, double z, double dt_s) {
   e.delay_samples = dm.delay_samples;
   e.fractional = dm.delay_fraction > 0.0;
   e.mu = std::move(op.mu);
+  e.remap = std::move(op.remap);
   return e;
 }
 
@@ -130,14 +147,14 @@ void RunUniform(const TsModel& model, double dt_s, std::span<const double> u,
     return cache.emplace(key, MakeUniformEntry<N>(model, z, dt_s)).first->second;
   };
 
-  const double z0 = OperatingZ(model, u.front());
-  Vec x = InitialState(OperatingPointAt(model, OperatingZ(model, u_before)).ss, u_before);
+  Scheduler scheduler(model);
+  Vec x = InitialState(OperatingPointAt(model, OperatingZ(scheduler, u_before)).ss, u_before);
   const long count = static_cast<long>(u.size());
   if (memberships) memberships->resize(u.size() * m);
 
   if (m == 1) {
     // One rule: one discretisation, the tightest loop.
-    const UniformEntry<N> e = entry_for(z0);
+    const UniformEntry<N> e = entry_for(0.0);  // one rule: every z gives the same model
     const long d = e.delay_samples;
     for (long k = 0; k < count; ++k) {
       const double u_now = up[k - d], u_prev = up[k - d - 1];
@@ -150,10 +167,16 @@ void RunUniform(const TsModel& model, double dt_s, std::span<const double> u,
   uint64_t last_key = ~uint64_t{0};
   const UniformEntry<N>* e = nullptr;
   for (long k = 0; k < count; ++k) {
-    const double z = OperatingZ(model, up[k]);
+    const double z = OperatingZ(scheduler, up[k]);
     const uint64_t key = std::bit_cast<uint64_t>(z);
     if (key != last_key) {
+      auto delayed = [&](const UniformEntry<N>* p) {
+        return p->fractional ? up[k - p->delay_samples - 1] : up[k - p->delay_samples];
+      };
+      const bool switching = e != nullptr && N != 0;
+      if (switching) AddMarkovTerm(e->remap, delayed(e), +1.0, &x);
       e = &entry_for(z);
+      if (switching) AddMarkovTerm(e->remap, delayed(e), -1.0, &x);
       last_key = key;
     }
     const long d = e->delay_samples;
@@ -200,6 +223,7 @@ void DispatchUniform(const TsModel& model, double dt_s, std::span<const double> 
 struct StreamingSimulator::Impl {
   TsModel model;
   SimulationOptions options;
+  Scheduler scheduler{model};
   bool started = false;
   double t_now_s = 0.0;
   double u_before_V = 0.0;
@@ -223,7 +247,7 @@ struct StreamingSimulator::Impl {
   }
 
   void SelectPoint(double voltage_V) {
-    const double z = OperatingZ(model, voltage_V);
+    const double z = OperatingZ(scheduler, voltage_V);
     const uint64_t key = std::bit_cast<uint64_t>(z);
     auto it = points.find(key);
     if (it == points.end()) {
@@ -308,7 +332,9 @@ struct StreamingSimulator::Impl {
     } else {
       if (!(t_s > t_now_s)) throw std::invalid_argument("StreamingSimulator: time not increasing");
       AdvanceTo(t_s);  // under the operating point of the previous sample
+      if (x.size() > 0) AddMarkovTerm(point->op.remap, DelayedInput(t_s), +1.0, &x);
       SelectPoint(voltage_V);
+      if (x.size() > 0) AddMarkovTerm(point->op.remap, DelayedInput(t_s), -1.0, &x);
     }
     history.emplace_back(t_s, voltage_V);
     TrimHistory();

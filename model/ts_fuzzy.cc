@@ -4,6 +4,8 @@
 #include <cmath>
 #include <limits>
 
+#include "model/polynomial.h"
+
 namespace flexid::model {
 namespace {
 
@@ -114,22 +116,32 @@ bool ParseMembershipShape(const std::string& name, MembershipShape* shape) {
 }
 
 const char* SchedulingVariableName(SchedulingVariable variable) {
-  return variable == SchedulingVariable::kAbsVoltage ? "abs_voltage" : "voltage";
+  switch (variable) {
+    case SchedulingVariable::kAbsVoltage:
+      return "abs_voltage";
+    case SchedulingVariable::kVoltage:
+      return "voltage";
+    case SchedulingVariable::kAbsVoltageHeld:
+      return "abs_voltage_held";
+  }
+  return "unknown";
 }
 
 bool ParseSchedulingVariable(const std::string& name, SchedulingVariable* variable) {
-  if (name == "abs_voltage") {
-    *variable = SchedulingVariable::kAbsVoltage;
-  } else if (name == "voltage") {
-    *variable = SchedulingVariable::kVoltage;
-  } else {
-    return false;
+  for (auto v : {SchedulingVariable::kAbsVoltage, SchedulingVariable::kVoltage,
+                 SchedulingVariable::kAbsVoltageHeld}) {
+    if (name == SchedulingVariableName(v)) {
+      *variable = v;
+      return true;
+    }
   }
-  return true;
+  return false;
 }
 
 bool IsValid(const TsModel& model, std::string* error) {
   if (model.rules.empty()) return Fail(error, "T-S model has no rules");
+  if (!std::isfinite(model.rest_band_V) || model.rest_band_V < 0.0)
+    return Fail(error, "rest_band_V must be finite and >= 0");
   int order = -1;
   for (size_t i = 0; i < model.rules.size(); ++i) {
     const LocalModel& rule = model.rules[i];
@@ -149,7 +161,14 @@ bool IsValid(const TsModel& model, std::string* error) {
 }
 
 double SchedulingValue(const TsModel& model, double voltage_V) {
-  return model.scheduling == SchedulingVariable::kAbsVoltage ? std::abs(voltage_V) : voltage_V;
+  return model.scheduling == SchedulingVariable::kVoltage ? voltage_V : std::abs(voltage_V);
+}
+
+double Scheduler::Next(double voltage_V) {
+  const double z = SchedulingValue(*model_, voltage_V);
+  if (model_->scheduling != SchedulingVariable::kAbsVoltageHeld) return z;
+  if (z > model_->rest_band_V) held_ = z;
+  return held_;
 }
 
 void NormalisedMemberships(const TsModel& model, double z, std::vector<double>* mu) {
@@ -170,7 +189,8 @@ void NormalisedMemberships(const TsModel& model, double z, std::vector<double>* 
   (*mu)[nearest] = 1.0;
 }
 
-TsModel MakeTsModelOnLevels(std::vector<LocalModel> local_models, SchedulingVariable scheduling) {
+TsModel MakeTsModelOnLevels(std::vector<LocalModel> local_models, SchedulingVariable scheduling,
+                            double rest_band_V) {
   std::sort(local_models.begin(), local_models.end(),
             [](const LocalModel& a, const LocalModel& b) { return a.level_V < b.level_V; });
   const size_t m = local_models.size();
@@ -181,21 +201,44 @@ TsModel MakeTsModelOnLevels(std::vector<LocalModel> local_models, SchedulingVari
     local_models[i].membership = {MembershipShape::kTrapezoidal,
                                   {lower, i > 0 ? level : -kInf, i + 1 < m ? level : kInf, upper}};
   }
-  return {scheduling, std::move(local_models)};
+  return {scheduling, std::move(local_models), rest_band_V};
 }
 
 TransferFunction BlendedTransferFunction(const TsModel& model, const std::vector<double>& mu) {
-  const int order = Order(model.rules.front().tf);
-  TransferFunction blend{std::vector<double>(static_cast<size_t>(order) + 1, 0.0),
-                         std::vector<double>(static_cast<size_t>(order) + 1, 0.0), 0.0};
+  const size_t order = static_cast<size_t>(Order(model.rules.front().tf));
+  // Weighted sums of the real factors, the gain-normalised numerators, gains and delays.
+  std::vector<std::vector<double>> factors;
+  std::vector<double> shape(order + 1, 0.0), plain(order + 1, 0.0);
+  double gain = 0.0, delay_s = 0.0;
+  bool normalisable = true;
   for (size_t i = 0; i < model.rules.size(); ++i) {
     if (mu[i] == 0.0) continue;
     const TransferFunction local = Normalised(model.rules[i].tf);
-    // Both aligned at the constant term; the numerator padded to the denominator's length.
-    const size_t num_offset = blend.num.size() - local.num.size();
-    for (size_t j = 0; j < local.num.size(); ++j) blend.num[num_offset + j] += mu[i] * local.num[j];
-    for (size_t j = 0; j < local.den.size(); ++j) blend.den[j] += mu[i] * local.den[j];
-    blend.delay_s += mu[i] * local.delay_s;
+    const std::vector<std::vector<double>> local_factors = RealFactors(local.den);
+    if (factors.empty()) {
+      factors = local_factors;
+      for (auto& f : factors)
+        for (double& c : f) c = 0.0;
+    }
+    for (size_t q = 0; q < factors.size(); ++q)
+      for (size_t j = 0; j < factors[q].size(); ++j) factors[q][j] += mu[i] * local_factors[q][j];
+    const double num0 = local.num.back();
+    normalisable = normalisable && num0 != 0.0 && local.den.back() != 0.0;
+    const size_t offset = shape.size() - local.num.size();
+    for (size_t j = 0; j < local.num.size(); ++j) {
+      plain[offset + j] += mu[i] * local.num[j];
+      if (num0 != 0.0) shape[offset + j] += mu[i] * local.num[j] / num0;
+    }
+    if (local.den.back() != 0.0) gain += mu[i] * DcGain(local);
+    delay_s += mu[i] * local.delay_s;
+  }
+  std::vector<double> den = {1.0};
+  for (const auto& f : factors) den = MultiplyPolynomials(den, f);
+  TransferFunction blend{plain, den, delay_s};
+  if (normalisable) {
+    // num(mu) = K(mu) den(mu)(0) shape(s), so that num(0) / den(0) = K(mu).
+    for (double& c : shape) c *= gain * den.back();
+    blend.num = shape;
   }
   return blend;
 }

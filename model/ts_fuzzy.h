@@ -5,24 +5,33 @@
 // (Eq. 16). The global model is x' = A(mu) x + B(mu) u(t - T(mu)) (Eqs. 17, 19).
 //
 // How flexid blends, and why it departs from the letter of Eq. (17):
-// every local model is realised in the output-derivative form (state_space.h), whose
-// A_i differ only in the companion row holding the denominator coefficients, so
-// A(mu) = sum_i mu_i A_i holds exactly. For the input vector flexid does NOT use
-// sum_i mu_i B_i: in that form B_i are Markov parameters, and blending them linearly
-// makes the numerator's constant term a difference of large numbers. With the seed's
-// coefficients the literal blend has a negative DC gain at 4 V (between two local models
-// of gain +5.3 and +8.7). In the observable companion form Eq. (17) is linear in the
-// coefficients but a voltage step across a rule boundary rings the lightly damped mode.
-// flexid therefore blends the transfer-function coefficients,
-//   num(mu) = sum_i mu_i num_i,  den(mu) = sum_i mu_i den_i (each den monic),
-//   T(mu) = sum_i mu_i T_i,
-// and realises that blend in the output-derivative form: A(mu) is exactly Eq. (17)'s,
-// B(mu) is the blend's Markov parameters, the DC gain moves monotonically between the
-// local gains, and the states keep their meaning (output and derivatives) across a switch.
+// blending the matrices A_i, B_i of any fixed realisation blends polynomial coefficients,
+// and a convex combination of two stable 4th-order denominators need not be stable (it
+// was not for local models identified from a 2-4-6-8 V staircase), nor need the DC gain
+// stay between the local gains (in the output-derivative form the seed's own models give
+// a negative DC gain at 4 V, because the numerator's constant term becomes a difference of
+// numbers near 143). flexid therefore blends the frozen transfer function at mu:
+//   - denominator: each local denominator is split into real factors (RealFactors:
+//     quadratics s^2 + c1 s + c0 ordered slow to fast, one linear factor for odd order)
+//     and corresponding factors are blended, c(mu) = sum_i mu_i c_i; stable local models
+//     have c > 0, so every blend is stable;
+//   - DC gain: K(mu) = sum_i mu_i K_i, monotone between neighbouring levels;
+//   - zeros: the numerator shape is the blend of the gain-normalised numerators
+//     num_i(s) / num_i(0) (plain coefficients when a local model has no DC gain);
+//   - dead time: T(mu) = sum_i mu_i T_i.
+// The frozen model is realised in the output-derivative form, whose states are the
+// output and its derivatives, so a change of operating point keeps the output continuous
+// and a step across a rule boundary does not ring (tests/ts_fuzzy_test.cc). At every
+// level the blend is exactly that level's local model.
 //
 // Scheduling: z(t) = |u(t)| by default (the seed's rules are on |z| <= 5 and 5 < |z| <= 8);
 // z follows the applied voltage without the dead time: the operating point is set the
-// moment the voltage is applied.
+// moment the voltage is applied. With kAbsVoltageHeld, a voltage inside the rest band
+// (|u| <= rest_band_V) keeps the operating point of the last voltage applied outside it:
+// the relaxation after a 8 V pulse then follows the 8 V model, as it did in the
+// recording that model was identified from (a 0 <-> 8 V square wave). With plain |u| the
+// blend would switch to the lowest level's model at every return to 0 V and could not
+// reproduce its own local model on that recording. Identification uses kAbsVoltageHeld.
 #pragma once
 
 #include <string>
@@ -49,7 +58,7 @@ bool IsValid(const Membership& membership, std::string* error);
 const char* MembershipShapeName(MembershipShape shape);
 bool ParseMembershipShape(const std::string& name, MembershipShape* shape);
 
-enum class SchedulingVariable { kAbsVoltage, kVoltage };
+enum class SchedulingVariable { kAbsVoltage, kVoltage, kAbsVoltageHeld };
 const char* SchedulingVariableName(SchedulingVariable variable);
 bool ParseSchedulingVariable(const std::string& name, SchedulingVariable* variable);
 
@@ -62,11 +71,24 @@ struct LocalModel {
 struct TsModel {
   SchedulingVariable scheduling = SchedulingVariable::kAbsVoltage;
   std::vector<LocalModel> rules;
+  double rest_band_V = 0.0;  // kAbsVoltageHeld: |u| at or below this is rest
+};
+
+// The scheduling value z_k for a sequence of voltages (kAbsVoltageHeld has memory).
+class Scheduler {
+ public:
+  explicit Scheduler(const TsModel& model) : model_(&model) {}
+  double Next(double voltage_V);
+
+ private:
+  const TsModel* model_;
+  double held_ = 0.0;
 };
 
 // At least one rule; every local model valid and of the same order; memberships valid.
 bool IsValid(const TsModel& model, std::string* error);
 
+// The memoryless part of the scheduling: |u| or u (kAbsVoltageHeld gives |u|).
 double SchedulingValue(const TsModel& model, double voltage_V);
 
 // Eq. (16): normalised firing strengths mu (size = number of rules, sum 1). Where no
@@ -78,7 +100,8 @@ void NormalisedMemberships(const TsModel& model, double z, std::vector<double>* 
 // that exactly the two neighbouring rules fire between two levels and each local model
 // is used alone at its own level.
 TsModel MakeTsModelOnLevels(std::vector<LocalModel> local_models,
-                            SchedulingVariable scheduling = SchedulingVariable::kAbsVoltage);
+                            SchedulingVariable scheduling = SchedulingVariable::kAbsVoltage,
+                            double rest_band_V = 0.0);
 
 // The frozen model at memberships mu (the blend described above). Precondition:
 // IsValid(model), mu.size() == rules.size(), sum mu == 1.

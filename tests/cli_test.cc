@@ -107,11 +107,58 @@ TEST_F(Cli, BadInputExitsTwoWithOneLineNamingTheProblem) {
 }
 
 TEST_F(Cli, HelpOnEveryCommandHasAnExample) {
-  for (const char* command : {"tf show", "simulate", "physics"}) {
+  for (const char* command : {"tf show", "simulate", "physics", "identify"}) {
     const auto r = Run(std::string(command) + " --help");
     EXPECT_EQ(r.exit_code, 0) << command;
     EXPECT_NE(r.out.find("Example"), std::string::npos) << command << "\n" << r.out;
   }
+}
+
+// Recordings of the seed's 2 V model under square waves are made with the CLI itself:
+// voltage-only CSV -> simulate -> rename the prediction column.
+TEST_F(Cli, IdentifyRecoversTheModelBehindARecordingAndValidates) {
+  auto write_square = [&](const std::string& name, double period_s, int samples) {
+    std::string text = "t_s,voltage_V\n";
+    for (int k = 0; k < samples; ++k)
+      text += std::to_string(0.1 * k) + "," +
+              (std::fmod(0.1 * k, period_s) < period_s / 2 ? "2" : "0") + "\n";
+    WriteFile(scratch_.File(name + "-volts.csv"), text);
+    auto r = Run("simulate --model " + kExamples + "/seed-2V.json " +
+                 scratch_.File(name + "-volts.csv"));
+    EXPECT_EQ(r.exit_code, 0) << r.err;
+    WriteFile(scratch_.File(name + ".csv"),
+              "t_s,voltage_V,deflection_mm\n" + r.out.substr(r.out.find('\n') + 1));
+    return scratch_.File(name + ".csv");
+  };
+  const std::string fit = write_square("fit", 220.0, 11000),
+                    check = write_square("check", 150.0, 6000);
+  const auto r = Run("identify " + fit + " --validate " + check + " --json --out " +
+                     scratch_.File("model.json"));
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const auto doc = nlohmann::json::parse(r.out);
+  EXPECT_EQ(doc["format"], "flexid.model/1");
+  EXPECT_EQ(doc["kind"], "tf");
+  EXPECT_NEAR(doc["dc_gain"]["value"].get<double>(), 1.14 / 0.2142, 1e-3);
+  EXPECT_NEAR(doc["delay_s"].get<double>(), 3.67, 0.037);
+  EXPECT_GT(doc["validation"]["fit_percent"].get<double>(), 99.9);
+  EXPECT_TRUE(std::filesystem::exists(scratch_.File("model.json")));
+  // The written file is a model the other commands read.
+  EXPECT_EQ(Run("tf show " + scratch_.File("model.json")).exit_code, 0);
+}
+
+TEST_F(Cli, IdentifyRejectsBadRecordingsAndOptions) {
+  std::string flat = "t_s,voltage_V,deflection_mm\n";
+  for (int k = 0; k < 2000; ++k) flat += std::to_string(0.1 * k) + ",5,0\n";
+  WriteFile(scratch_.File("flat.csv"), flat);
+  auto r = Run("identify " + scratch_.File("flat.csv"));
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("flat.csv"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("constant"), std::string::npos) << r.err;
+  r = Run("identify " + scratch_.File("flat.csv") + " --structure nonsense");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("--structure"), std::string::npos) << r.err;
+  r = Run("identify " + scratch_.File("flat.csv") + " --zeros 4 --poles 4");
+  EXPECT_EQ(r.exit_code, 2);
 }
 
 }  // namespace

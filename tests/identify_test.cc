@@ -122,6 +122,7 @@ TEST(Identify, BadRecordingsGetClearErrors) {
   DataSegment short_seg = Record(truth, SquareWave(2.0, 10.0, 1), 0.0, 0);  // 100 samples
   EXPECT_NE(message_of({short_seg}).find("too short"), std::string::npos);
   DataSegment constant = Record(truth, std::vector<double>(3000, 2.0), 0.0, 0);
+  constant.initial_voltage_V = 2.0;  // held before too: no step anywhere
   EXPECT_NE(message_of({constant}).find("constant"), std::string::npos);
   DataSegment with_nan = Record(truth, SquareWave(2.0, 220.0, 2), 0.0, 0);
   with_nan.deflection_mm[100] = NAN;

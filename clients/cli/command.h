@@ -23,5 +23,6 @@ struct OperationError : std::runtime_error {
 void RegisterTfCommand(CLI::App& app);
 void RegisterSimulateCommand(CLI::App& app);
 void RegisterPhysicsCommand(CLI::App& app);
+void RegisterIdentifyCommand(CLI::App& app);
 
 }  // namespace flexid::cli

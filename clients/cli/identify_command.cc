@@ -1,0 +1,347 @@
+// flexid identify REC.csv [REC2.csv ...] [--out MODEL.json] [--json] [--validate VAL.csv]
+//
+// Finds the voltage levels, fits one local transfer function with dead time per level
+// and assembles the T-S model (model/identify_ts.h); or, with --structure physics, fits
+// the physics chain's parameters (model/greybox.h); or, with --method frequency, fits the
+// rational model to frequency responses estimated from square waves
+// (model/frequency_response.h). --json prints the model file document itself, with its
+// fit figures; --out writes it.
+#include <cmath>
+#include <iostream>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <sstream>
+
+#include "clients/cli/command.h"
+#include "clients/cli/format.h"
+#include "flexid/version.h"
+#include "model/errors.h"
+#include "model/frequency_response.h"
+#include "model/greybox.h"
+#include "model/identify_ts.h"
+#include "model/model_file.h"
+#include "model/physics.h"
+#include "model/recording.h"
+#include "model/simulate.h"
+
+namespace flexid::cli {
+namespace {
+
+using nlohmann::json;
+
+struct IdentifyArgs {
+  std::vector<std::string> recordings;
+  std::vector<std::string> validate;
+  std::string out;
+  bool as_json = false;
+  int zeros = 3, poles = 4;
+  double max_delay_s = 10.0;
+  std::optional<double> delay_s;
+  std::string structure = "free";
+  std::string method = "time";
+  std::string geometry_mm = "40x8x2";
+};
+
+json Number(double value) { return std::isfinite(value) ? json(value) : json(nullptr); }
+
+json FitJson(const model::FitFigures& fit) {
+  json out = {{"samples", fit.samples},
+              {"fit_percent", Number(fit.fit_percent)},
+              {"rmse_mm", Number(fit.rmse_mm)}};
+  if (fit.whiteness.max_lag > 0)
+    out["whiteness"] = {{"passed", fit.whiteness.passed},
+                        {"max_lag", fit.whiteness.max_lag},
+                        {"ljung_box_q", fit.whiteness.ljung_box_q},
+                        {"threshold_95", fit.whiteness.chi2_threshold}};
+  if (fit.cross_correlation.max_lag > 0)
+    out["input_residual_correlation"] = {{"passed", fit.cross_correlation.passed},
+                                         {"max_lag", fit.cross_correlation.max_lag},
+                                         {"max_abs", fit.cross_correlation.max_abs},
+                                         {"bound_95", fit.cross_correlation.bound}};
+  return out;
+}
+
+json IntervalsJson(const std::vector<model::ParameterEstimate>& estimates) {
+  json out = json::object();
+  for (const auto& e : estimates)
+    out[e.name] = {{"value", e.value}, {"half_width_95", Number(e.half_width_95)}};
+  return out;
+}
+
+json PolesJson(const std::vector<model::PoleEstimate>& poles) {
+  json out = json::array();
+  for (const auto& p : poles)
+    out.push_back({{"re", p.re},
+                   {"im", p.im},
+                   {"re_half_width_95", Number(p.re_half_width_95)},
+                   {"im_half_width_95", Number(p.im_half_width_95)}});
+  return out;
+}
+
+std::string Passed(bool tested, bool passed) { return !tested ? "-" : passed ? "pass" : "FAIL"; }
+
+void PrintFit(const std::string& label, const model::FitFigures& fit) {
+  std::cout << "  " << label << ": fit " << FormatNumber(fit.fit_percent, 4) << " %, RMSE "
+            << FormatNumber(fit.rmse_mm, 4) << " mm, " << fit.samples
+            << " samples; residual whiteness "
+            << Passed(fit.whiteness.max_lag > 0, fit.whiteness.passed)
+            << ", input-residual correlation "
+            << Passed(fit.cross_correlation.max_lag > 0, fit.cross_correlation.passed) << "\n";
+}
+
+void PrintEstimate(const model::TfEstimate& e) {
+  Table table({"parameter", "value", "+- 95 %"});
+  for (const auto& c : e.coefficients)
+    table.AddRow({c.name, FormatNumber(c.value, 6), FormatNumber(c.half_width_95, 3)});
+  table.AddRow(
+      {"DC gain", FormatNumber(e.dc_gain.value, 6), FormatNumber(e.dc_gain.half_width_95, 3)});
+  table.Print(std::cout, "    ");
+  std::cout << "    poles:";
+  for (const auto& p : e.poles) std::cout << "  " << FormatComplex({p.re, p.im}, 4);
+  std::cout << "\n";
+}
+
+std::vector<model::Recording> ReadAll(const std::vector<std::string>& paths,
+                                      bool require_deflection) {
+  std::vector<model::Recording> out;
+  for (const std::string& path : paths)
+    out.push_back(model::ReadRecordingCsv(path, {.require_deflection = require_deflection}));
+  return out;
+}
+
+// A whole recording as one segment on a uniform grid (starting at rest).
+model::DataSegment WholeRecording(const model::Recording& rec) {
+  model::DataSegment seg;
+  if (!model::IsUniformGrid(rec.t_s, &seg.dt_s))
+    throw UsageError(rec.source + ": this method needs a uniform sample period");
+  seg.voltage_V = rec.voltage_V;
+  seg.deflection_mm = rec.deflection_mm;
+  return seg;
+}
+
+model::PhysicalParameters GeometryStart(const std::string& text) {
+  double l = 0, w = 0, h = 0;
+  char x1 = 0, x2 = 0;
+  std::istringstream in(text);
+  if (!(in >> l >> x1 >> w >> x2 >> h) || x1 != 'x' || x2 != 'x' || !(l > 0 && w > 0 && h > 0) ||
+      !in.eof())
+    throw UsageError("--geometry: expected LxWxh in mm, e.g. 40x8x2, got \"" + text + "\"");
+  return model::WithGeometry(model::SeedS1Parameters(), l * 1e-3, w * 1e-3, h * 1e-3);
+}
+
+void Emit(const IdentifyArgs& args, const model::ModelDocument& doc) {
+  if (!args.out.empty()) model::WriteModelFile(args.out, doc);
+  if (args.as_json)
+    std::cout << model::ModelToJson(doc).dump(2) << "\n";
+  else if (!args.out.empty())
+    std::cout << "wrote " << args.out << "\n";
+}
+
+void AddValidation(const IdentifyArgs& args, const model::TsModel& model,
+                   model::ModelDocument* doc) {
+  if (args.validate.empty()) return;
+  const model::FitFigures validation = model::EvaluateTsFit(model, ReadAll(args.validate, true));
+  doc->extra["validation"] = FitJson(validation);
+  doc->extra["validation"]["recordings"] = args.validate;
+  if (!args.as_json) PrintFit("validation", validation);
+}
+
+void RunFree(const IdentifyArgs& args, model::ModelDocument* doc,
+             const std::vector<model::Recording>& recordings) {
+  model::TsIdentifyOptions options;
+  options.local.num_zeros = args.zeros;
+  options.local.num_poles = args.poles;
+  options.local.max_delay_s = args.max_delay_s;
+  if (args.delay_s) {
+    options.local.estimate_delay = false;
+    options.local.fixed_delay_s = *args.delay_s;
+  }
+  const model::TsEstimate estimate = model::IdentifyTsModel(recordings, options);
+  if (estimate.local.size() == 1) {
+    *doc = model::FromTransferFunction(estimate.local[0].estimate.tf);
+    doc->extra["level_V"] = estimate.local[0].level_V;
+  } else {
+    *doc = model::FromTsModel(estimate.model);
+  }
+  json locals = json::array();
+  for (size_t i = 0; i < estimate.local.size(); ++i) {
+    const model::TfEstimate& e = estimate.local[i].estimate;
+    json local = {
+        {"fit", FitJson(e.fit)},
+        {"intervals", IntervalsJson(e.coefficients)},
+        {"dc_gain",
+         {{"value", e.dc_gain.value}, {"half_width_95", Number(e.dc_gain.half_width_95)}}},
+        {"poles", PolesJson(e.poles)},
+        {"noise_std_mm", e.noise_std_mm}};
+    if (estimate.local.size() == 1) {
+      for (auto& [key, value] : local.items()) doc->extra[key] = value;
+    } else {
+      doc->local_extra[i] = local;
+    }
+  }
+  doc->extra["fit"] = FitJson(estimate.fit);
+  if (!estimate.leave_one_level_out.empty()) {
+    json lolo = json::array();
+    for (const auto& r : estimate.leave_one_level_out)
+      lolo.push_back({{"level_V", r.level_V},
+                      {"in_sample_rmse_mm", r.in_sample_rmse_mm},
+                      {"left_out_rmse_mm", r.left_out_rmse_mm},
+                      {"left_out_fit_percent", Number(r.left_out_fit_percent)}});
+    doc->extra["leave_one_level_out"] = lolo;
+  }
+  if (!estimate.notes.empty()) doc->extra["notes"] = estimate.notes;
+  if (!args.as_json) {
+    std::cout << estimate.local.size()
+              << (estimate.local.size() == 1 ? " voltage level" : " voltage levels")
+              << (estimate.plateau_input ? "" : " (no plateaus: one level for the whole input)")
+              << "\n";
+    for (const auto& local : estimate.local) {
+      std::cout << "\nlocal model at " << FormatNumber(local.level_V, 4) << " V (" << local.segments
+                << (local.segments == 1 ? " segment" : " segments") << ")\n";
+      PrintFit("fit", local.estimate.fit);
+      PrintEstimate(local.estimate);
+    }
+    std::cout << "\n";
+    PrintFit(estimate.local.size() == 1 ? "model" : "T-S blend", estimate.fit);
+    if (!estimate.leave_one_level_out.empty()) {
+      std::cout << "  leave one level out (RMSE mm, blend of the other levels vs full blend):\n";
+      Table table({"level V", "left out", "in sample"});
+      for (const auto& r : estimate.leave_one_level_out)
+        table.AddRow({FormatNumber(r.level_V, 4), FormatNumber(r.left_out_rmse_mm, 4),
+                      FormatNumber(r.in_sample_rmse_mm, 4)});
+      table.Print(std::cout, "    ");
+    }
+    for (const auto& note : estimate.notes) std::cout << "  note: " << note << "\n";
+  }
+  AddValidation(args, estimate.model, doc);
+}
+
+void RunPhysics(const IdentifyArgs& args, model::ModelDocument* doc,
+                const std::vector<model::Recording>& recordings) {
+  const model::PhysicalParameters start = GeometryStart(args.geometry_mm);
+  std::vector<model::DataSegment> segments;
+  for (const auto& rec : recordings) segments.push_back(WholeRecording(rec));
+  model::GreyBoxOptions options;
+  options.max_delay_s = args.max_delay_s;
+  const model::GreyBoxEstimate e = model::IdentifyPhysics(segments, start, options);
+  // The model file holds the small-bending linearisation y = K L^2 / 2 (mm); the physical
+  // parameters are kept beside it.
+  model::TransferFunction deflection = e.curvature_tf;
+  for (double& c : deflection.num) c *= 0.5 * start.L_m * start.L_m * 1000.0;
+  *doc = model::FromTransferFunction(deflection);
+  doc->extra["structure"] = "physics";
+  doc->extra["physical_parameters"] = IntervalsJson(e.estimates);
+  doc->extra["identifiable_combinations"] = IntervalsJson(e.combinations);
+  doc->extra["geometry_mm"] = {
+      {"L", start.L_m * 1e3}, {"W", start.W_m * 1e3}, {"h", start.h_m * 1e3}};
+  doc->extra["fit"] = FitJson(e.fit);
+  doc->extra["note"] =
+      "num/den: small-bending linearisation (deflection = curvature L^2/2) of the fitted chain";
+  if (!args.as_json) {
+    std::cout << "physics chain fitted (geometry " << args.geometry_mm << " mm, C_dl and E held)\n";
+    PrintFit("fit", e.fit);
+    Table table({"parameter", "value", "+- 95 %"});
+    for (const auto& p : e.estimates)
+      table.AddRow({p.name, FormatNumber(p.value, 5), FormatNumber(p.half_width_95, 3)});
+    for (const auto& p : e.combinations)
+      table.AddRow({p.name, FormatNumber(p.value, 5), FormatNumber(p.half_width_95, 3)});
+    table.Print(std::cout, "    ");
+    std::cout << "  (intervals wider than the value mean the data do not determine that parameter; "
+                 "model/greybox.h)\n";
+  }
+  AddValidation(args, model::SingleRule(deflection), doc);
+}
+
+void RunFrequency(const IdentifyArgs& args, model::ModelDocument* doc,
+                  const std::vector<model::Recording>& recordings) {
+  std::vector<model::DataSegment> segments;
+  for (const auto& rec : recordings) segments.push_back(WholeRecording(rec));
+  model::FrequencyFitOptions options;
+  options.num_zeros = args.zeros;
+  options.num_poles = args.poles;
+  options.max_delay_s = args.max_delay_s;
+  const model::FrequencyFit fit = model::IdentifyFromSquareWaves(segments, options);
+  *doc = model::FromTransferFunction(fit.tf);
+  json points = json::array();
+  for (const auto& p : fit.points)
+    points.push_back({{"frequency_Hz", p.frequency_Hz},
+                      {"gain", std::abs(p.response)},
+                      {"phase_rad", std::arg(p.response)},
+                      {"gain_half_width_95", p.gain_half_width_95},
+                      {"harmonic", p.harmonic}});
+  doc->extra["method"] = "frequency";
+  doc->extra["frequency_points"] = points;
+  doc->extra["intervals"] = IntervalsJson(fit.coefficients);
+  doc->extra["weighted_rms_error"] = fit.weighted_rms_error;
+  doc->extra["report"] = fit.method_report;
+  if (!args.as_json) {
+    std::cout << "frequency response from " << fit.points.size() << " points; " << fit.method_report
+              << "\n";
+    Table table({"f Hz", "gain", "phase deg", "+- gain"});
+    for (const auto& p : fit.points)
+      table.AddRow({FormatNumber(p.frequency_Hz, 4), FormatNumber(std::abs(p.response), 4),
+                    FormatNumber(std::arg(p.response) * 180.0 / M_PI, 4),
+                    FormatNumber(p.gain_half_width_95, 3)});
+    table.Print(std::cout, "    ");
+    std::cout << "  G(s) = e^(-" << FormatNumber(fit.tf.delay_s, 4) << " s) ("
+              << FormatPolynomial(fit.tf.num) << ") / (" << FormatPolynomial(fit.tf.den) << ")\n";
+  }
+  AddValidation(args, model::SingleRule(fit.tf), doc);
+}
+
+void RunIdentify(const IdentifyArgs& args) {
+  if (args.structure != "free" && args.structure != "physics")
+    throw UsageError("--structure: expected free or physics, got \"" + args.structure + "\"");
+  if (args.method != "time" && args.method != "frequency")
+    throw UsageError("--method: expected time or frequency, got \"" + args.method + "\"");
+  if (args.structure == "physics" && args.method == "frequency")
+    throw UsageError("--structure physics fits in the time domain; drop --method frequency");
+  if (!(args.max_delay_s >= 0.0) || !std::isfinite(args.max_delay_s))
+    throw UsageError("--max-delay must be finite and >= 0");
+  if (args.delay_s && (!(*args.delay_s >= 0.0) || !std::isfinite(*args.delay_s)))
+    throw UsageError("--delay must be finite and >= 0");
+  if (args.poles < 1 || args.poles > 8 || args.zeros < 0 || args.zeros >= args.poles)
+    throw UsageError("orders: need 1 <= --poles <= 8 and 0 <= --zeros < --poles");
+  const std::vector<model::Recording> recordings = ReadAll(args.recordings, true);
+  model::ModelDocument doc;
+  if (args.structure == "physics")
+    RunPhysics(args, &doc, recordings);
+  else if (args.method == "frequency")
+    RunFrequency(args, &doc, recordings);
+  else
+    RunFree(args, &doc, recordings);
+  doc.extra["identified_from"] = args.recordings;
+  doc.extra["flexid_version"] = kVersion;
+  Emit(args, doc);
+}
+
+}  // namespace
+
+void RegisterIdentifyCommand(CLI::App& app) {
+  auto args = std::make_shared<IdentifyArgs>();
+  CLI::App* cmd =
+      app.add_subcommand("identify", "Identify per-voltage transfer functions and their T-S blend");
+  cmd->add_option("RECORDING", args->recordings, "Recording CSVs (t_s,voltage_V,deflection_mm)")
+      ->required();
+  cmd->add_option("--out", args->out, "Write the model file here");
+  cmd->add_flag("--json", args->as_json, "Print the model file document (with fit figures)");
+  cmd->add_option("--validate", args->validate, "Recordings to validate on (not fitted)");
+  cmd->add_option("--zeros", args->zeros, "Numerator order (default 3)");
+  cmd->add_option("--poles", args->poles, "Denominator order (default 4)");
+  cmd->add_option("--max-delay", args->max_delay_s, "Largest dead time searched, s (default 10)");
+  cmd->add_option("--delay", args->delay_s, "Fix the dead time, s, instead of estimating it");
+  cmd->add_option("--structure", args->structure,
+                  "free (Eq. 18 coefficients) or physics (Eqs. 1-13 parameters)");
+  cmd->add_option("--method", args->method,
+                  "time (output error) or frequency (square-wave frequency responses)");
+  cmd->add_option("--geometry", args->geometry_mm,
+                  "Beam LxWxh in mm for --structure physics (default 40x8x2)");
+  cmd->footer(
+      "Examples:\n"
+      "  flexid identify run-2V.csv run-8V.csv --out s1.json --validate check.csv\n"
+      "  flexid identify staircase.csv --json > model.json\n"
+      "  flexid identify square-5V.csv --structure physics --geometry 40x8x2");
+  cmd->callback([args] { RunIdentify(*args); });
+}
+
+}  // namespace flexid::cli

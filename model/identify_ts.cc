@@ -1,0 +1,233 @@
+#include "model/identify_ts.h"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+#include "model/errors.h"
+#include "model/metrics.h"
+#include "model/simulate.h"
+
+namespace flexid::model {
+namespace {
+
+// A recording on a uniform grid: as given when it already is one, otherwise resampled to
+// its median sample period (voltage held, deflection interpolated linearly).
+struct UniformRecording {
+  double dt_s = 0.0;
+  std::vector<double> voltage_V, deflection_mm, t_s;
+  bool resampled = false;
+};
+
+UniformRecording MakeUniform(const Recording& rec) {
+  if (rec.t_s.size() < 2 || rec.deflection_mm.size() != rec.t_s.size())
+    throw InputError(rec.source +
+                     ": needs time, voltage and deflection columns with 2 or more rows");
+  UniformRecording out;
+  if (IsUniformGrid(rec.t_s, &out.dt_s)) {
+    out.t_s = rec.t_s;
+    out.voltage_V = rec.voltage_V;
+    out.deflection_mm = rec.deflection_mm;
+    return out;
+  }
+  std::vector<double> steps;
+  for (size_t k = 1; k < rec.t_s.size(); ++k) steps.push_back(rec.t_s[k] - rec.t_s[k - 1]);
+  std::nth_element(steps.begin(), steps.begin() + static_cast<long>(steps.size() / 2), steps.end());
+  out.dt_s = steps[steps.size() / 2];
+  out.resampled = true;
+  size_t j = 0;
+  for (double t = rec.t_s.front(); t <= rec.t_s.back() + 1e-9 * out.dt_s; t += out.dt_s) {
+    while (j + 1 < rec.t_s.size() && rec.t_s[j + 1] <= t) ++j;
+    out.t_s.push_back(t);
+    out.voltage_V.push_back(rec.voltage_V[j]);  // zero-order hold
+    if (j + 1 < rec.t_s.size()) {
+      const double w = (t - rec.t_s[j]) / (rec.t_s[j + 1] - rec.t_s[j]);
+      out.deflection_mm.push_back((1 - w) * rec.deflection_mm[j] + w * rec.deflection_mm[j + 1]);
+    } else {
+      out.deflection_mm.push_back(rec.deflection_mm[j]);
+    }
+  }
+  return out;
+}
+
+// A level's segment in the form the local fit uses. A segment at the start of its
+// recording starts at rest. One with a lead-in starts where the previous level left the
+// actuator: at an equilibrium that the new level's model does not share, because the
+// gain changes with voltage. The lead-in is dropped and the voltage held before the
+// segment is fitted (identify.h, estimate_initial_voltage): the model starts at the
+// equilibrium that explains the measured deflection, and its gain is the absolute gain
+// at the level.
+DataSegment FitSegment(const UniformRecording& rec, const LevelSegment& seg) {
+  DataSegment data;
+  data.dt_s = rec.dt_s;
+  const size_t first = seg.begin == 0 ? 0 : seg.fit_begin;
+  data.voltage_V.assign(rec.voltage_V.begin() + static_cast<long>(first),
+                        rec.voltage_V.begin() + static_cast<long>(seg.end));
+  data.deflection_mm.assign(rec.deflection_mm.begin() + static_cast<long>(first),
+                            rec.deflection_mm.begin() + static_cast<long>(seg.end));
+  data.fit_begin = seg.begin == 0 ? seg.fit_begin : 0;
+  if (seg.begin > 0) {
+    data.initial_voltage_V = rec.voltage_V[seg.fit_begin - 1];  // the lead-in's voltage
+    data.estimate_initial_voltage = true;
+  }
+  return data;
+}
+
+// A level's segment as recorded (absolute values), starting in steady state under its
+// first voltage when it has a lead-in: what the blend is evaluated on.
+DataSegment AbsoluteSegment(const UniformRecording& rec, const LevelSegment& seg) {
+  DataSegment data;
+  data.dt_s = rec.dt_s;
+  data.voltage_V.assign(rec.voltage_V.begin() + static_cast<long>(seg.begin),
+                        rec.voltage_V.begin() + static_cast<long>(seg.end));
+  data.deflection_mm.assign(rec.deflection_mm.begin() + static_cast<long>(seg.begin),
+                            rec.deflection_mm.begin() + static_cast<long>(seg.end));
+  data.fit_begin = seg.fit_begin - seg.begin;
+  data.initial_voltage_V = seg.begin == 0 ? 0.0 : data.voltage_V.front();
+  return data;
+}
+
+// Predictions of a T-S model on a segment, from the segment's initial steady state.
+std::vector<double> PredictSegment(const TsModel& model, const DataSegment& seg) {
+  return SimulateUniform(model, seg.dt_s, seg.voltage_V,
+                         {.initial_voltage_V = seg.initial_voltage_V});
+}
+
+FitFigures FiguresOf(const std::vector<double>& measured, const std::vector<double>& predicted,
+                     const std::vector<double>& input, int correlation_lags) {
+  FitFigures fit;
+  fit.samples = measured.size();
+  fit.fit_percent = FitPercent(measured, predicted);
+  fit.rmse_mm = Rmse(measured, predicted);
+  std::vector<double> residual(measured.size());
+  for (size_t k = 0; k < residual.size(); ++k) residual[k] = measured[k] - predicted[k];
+  const int lags = std::min<int>(correlation_lags, static_cast<int>(residual.size() / 4));
+  if (lags >= 1) {
+    try {
+      fit.whiteness = TestWhiteness(residual, lags);
+      fit.cross_correlation = TestInputResidualCorrelation(input, residual, lags);
+    } catch (const std::invalid_argument&) {
+      // A constant residual or input has no correlation to test; the tests stay empty.
+    }
+  }
+  return fit;
+}
+
+FitFigures SegmentsFit(const TsModel& model, const std::vector<DataSegment>& segments, int lags) {
+  std::vector<double> measured, predicted, input;
+  for (const DataSegment& seg : segments) {
+    const std::vector<double> y = PredictSegment(model, seg);
+    for (size_t k = seg.fit_begin; k < y.size(); ++k) {
+      measured.push_back(seg.deflection_mm[k]);
+      predicted.push_back(y[k]);
+      input.push_back(seg.voltage_V[k]);
+    }
+  }
+  return FiguresOf(measured, predicted, input, lags);
+}
+
+}  // namespace
+
+bool TsIdentifyOptions::IsValid(std::string* error) const {
+  return local.IsValid(error) && levels.IsValid(error);
+}
+
+TsEstimate IdentifyTsModel(const std::vector<Recording>& recordings,
+                           const TsIdentifyOptions& options) {
+  std::string why;
+  if (!options.IsValid(&why)) throw std::invalid_argument("identification options: " + why);
+  if (recordings.empty()) throw InputError("no recordings to identify from");
+  TsEstimate result;
+  std::vector<UniformRecording> uniform;
+  std::vector<LevelAnalysis> analyses;
+  for (size_t r = 0; r < recordings.size(); ++r) {
+    uniform.push_back(MakeUniform(recordings[r]));
+    const UniformRecording& u = uniform.back();
+    if (u.resampled)
+      result.notes.push_back(recordings[r].source + ": non-uniform time, resampled to " +
+                             std::to_string(u.dt_s) + " s");
+    if (std::abs(u.dt_s - uniform.front().dt_s) > 1e-6 * uniform.front().dt_s)
+      throw InputError(recordings[r].source + ": sample period " + std::to_string(u.dt_s) +
+                       " s differs from " + recordings.front().source + "'s " +
+                       std::to_string(uniform.front().dt_s) + " s");
+    try {
+      analyses.push_back(DetectLevels(u.t_s, u.voltage_V, options.levels, r));
+    } catch (const InputError& e) {
+      throw InputError(recordings[r].source + ": " + e.what());
+    }
+  }
+  result.dt_s = uniform.front().dt_s;
+  const LevelAnalysis levels = MergeLevels(analyses, 0.0);
+  result.plateau_input = levels.plateau_input;
+
+  // One local model per level.
+  std::vector<std::vector<DataSegment>> level_segments;
+  std::vector<LocalModel> rules;
+  for (const VoltageLevel& level : levels.levels) {
+    std::vector<DataSegment> segments, absolute;
+    for (const LevelSegment& seg : level.segments) {
+      segments.push_back(FitSegment(uniform[seg.recording], seg));
+      absolute.push_back(AbsoluteSegment(uniform[seg.recording], seg));
+    }
+    LocalModelReport report;
+    report.level_V = level.level_V;
+    report.segments = segments.size();
+    // Levels are fitted in ascending order, each also started from the previous level's
+    // model, so that neighbouring local models share a structure (a fast mode stays a
+    // fast mode) and their blend between the levels is meaningful.
+    IdentifyOptions local_options = options.local;
+    if (!rules.empty()) local_options.start = rules.back().tf;
+    try {
+      report.estimate = IdentifyTransferFunction(segments, local_options);
+    } catch (const InputError& e) {
+      char level_text[32];
+      std::snprintf(level_text, sizeof level_text, "%.4g V", level.level_V);
+      throw InputError(std::string("level ") + level_text + ": " + e.what());
+    }
+    rules.push_back({level.level_V, report.estimate.tf, {}});
+    result.local.push_back(std::move(report));
+    level_segments.push_back(std::move(absolute));
+  }
+  // Rest keeps the last level's operating point: each local model was fitted on its
+  // level's relaxation too (ts_fuzzy.h, kAbsVoltageHeld).
+  result.model =
+      MakeTsModelOnLevels(rules, SchedulingVariable::kAbsVoltageHeld, levels.rest_band_V);
+
+  std::vector<DataSegment> all;
+  for (const auto& segments : level_segments)
+    all.insert(all.end(), segments.begin(), segments.end());
+  result.fit = SegmentsFit(result.model, all, options.local.correlation_lags);
+
+  // Leave one level out: the blend of the other levels on this level's segments.
+  if (rules.size() >= 2) {
+    for (size_t left_out = 0; left_out < rules.size(); ++left_out) {
+      std::vector<LocalModel> others;
+      for (size_t i = 0; i < rules.size(); ++i)
+        if (i != left_out) others.push_back(rules[i]);
+      const TsModel reduced =
+          MakeTsModelOnLevels(others, SchedulingVariable::kAbsVoltageHeld, levels.rest_band_V);
+      const FitFigures in_sample = SegmentsFit(result.model, level_segments[left_out], 1);
+      const FitFigures out = SegmentsFit(reduced, level_segments[left_out], 1);
+      result.leave_one_level_out.push_back(
+          {rules[left_out].level_V, in_sample.rmse_mm, out.rmse_mm, out.fit_percent});
+    }
+  }
+  return result;
+}
+
+FitFigures EvaluateTsFit(const TsModel& model, const std::vector<Recording>& recordings,
+                         int correlation_lags) {
+  std::vector<double> measured, predicted, input;
+  for (const Recording& rec : recordings) {
+    if (rec.deflection_mm.size() != rec.t_s.size())
+      throw InputError(rec.source + ": validation needs a deflection_mm column");
+    const std::vector<double> y = Simulate(model, rec.t_s, rec.voltage_V);
+    measured.insert(measured.end(), rec.deflection_mm.begin(), rec.deflection_mm.end());
+    predicted.insert(predicted.end(), y.begin(), y.end());
+    input.insert(input.end(), rec.voltage_V.begin(), rec.voltage_V.end());
+  }
+  if (measured.empty()) throw InputError("no validation samples");
+  return FiguresOf(measured, predicted, input, correlation_lags);
+}
+
+}  // namespace flexid::model

@@ -1,0 +1,63 @@
+// Identification of a T-S fuzzy model from recordings: find the voltage levels
+// (levels.h), fit one local transfer function per level on that level's segments
+// (identify.h; recordings that share a level are fitted jointly), and place the
+// memberships on the identified levels (MakeTsModelOnLevels). Every figure is measured:
+// in-sample per level, for the blend on all data, leave-one-level-out (how well the
+// blend of the other levels predicts a level it was not fitted on), and on validation
+// recordings when given.
+//
+// Recordings start at rest (0 V held before the first sample), as in `flexid simulate`.
+// A segment that begins with a lead-in starts in steady state under the lead-in voltage.
+// Recordings on non-uniform grids are resampled to their median sample period (voltage
+// held, deflection interpolated linearly) and the result says so.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "model/identify.h"
+#include "model/levels.h"
+#include "model/recording.h"
+#include "model/ts_fuzzy.h"
+
+namespace flexid::model {
+
+struct TsIdentifyOptions {
+  IdentifyOptions local;         // per local model
+  LevelDetectionOptions levels;  // plateau / level detection
+  bool IsValid(std::string* error) const;
+};
+
+struct LocalModelReport {
+  double level_V = 0.0;
+  size_t segments = 0;
+  TfEstimate estimate;
+};
+
+// How the blend of the other levels predicts one level's segments.
+struct LevelOutReport {
+  double level_V = 0.0;
+  double in_sample_rmse_mm = 0.0;  // the full blend on this level's segments
+  double left_out_rmse_mm = 0.0;   // the blend without this level's local model
+  double left_out_fit_percent = 0.0;
+};
+
+struct TsEstimate {
+  TsModel model;                                    // one rule per level
+  std::vector<LocalModelReport> local;              // ascending level
+  FitFigures fit;                                   // the blend on every segment's fitted samples
+  std::vector<LevelOutReport> leave_one_level_out;  // empty with one level
+  bool plateau_input = true;  // false: no plateaus found, one level (levels.h)
+  double dt_s = 0.0;
+  std::vector<std::string> notes;  // resampling and similar, in plain words
+};
+
+// Throws InputError for unusable recordings (named by Recording::source).
+TsEstimate IdentifyTsModel(const std::vector<Recording>& recordings,
+                           const TsIdentifyOptions& options = {});
+
+// Fit figures of a T-S model on whole recordings (validation).
+FitFigures EvaluateTsFit(const TsModel& model, const std::vector<Recording>& recordings,
+                         int correlation_lags = 25);
+
+}  // namespace flexid::model
