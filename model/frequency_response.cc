@@ -18,12 +18,14 @@ using Complex = std::complex<double>;
 constexpr double kPi = std::numbers::pi;
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
-constexpr int kTrendDegree = 3;               // Legendre polynomials 0..3 over the window
-constexpr double kMinHarmonicRatio = 0.01;    // |U_h| / |U_1| below this: not excited
-constexpr double kMaxNyquistFraction = 0.8;   // omega_h <= 0.8 pi / dt
-constexpr int kMaxNoiseBinOffset = 12;        // noise bins at most 12 bins from the line
-constexpr double kZ975 = 1.959963984540054;   // standard normal 97.5 % quantile
+constexpr int kTrendDegree = 4;                   // trend: Legendre polynomials up to degree 4 ...
+constexpr int kTrendPartsPerPeriod = 4;           // ... fitted to the means of quarter periods
+constexpr double kMinHarmonicRatio = 0.01;        // |U_h| / |U_1| below this: not excited
+constexpr double kMaxNyquistFraction = 0.8;       // omega_h <= 0.8 pi / dt
+constexpr int kMaxNoiseBinOffset = 12;            // noise bins at most 12 bins from the line
+constexpr double kZ975 = 1.959963984540054;       // standard normal 97.5 % quantile
 constexpr double kChi2One95 = 3.841458820694124;  // chi^2_1 95 % quantile
+constexpr double kCompetingChi2 = 9.0;  // a competing delay valley: Delta chi^2 <= 9 (3 sigma)
 
 std::string Format(double value, int digits = 4) {
   char text[64];
@@ -324,9 +326,8 @@ int LevenbergMarquardt(const FitData& d, const DelaySetting& delay_setting, int 
       lhs.diagonal() += lambda * diagonal;
       const Eigen::VectorXd step = lhs.ldlt().solve(-gradient);
       Eigen::VectorXd candidate = *theta + step;
-      const bool in_range =
-          !with_delay || (candidate(candidate.size() - 1) >= 0.0 &&
-                          candidate(candidate.size() - 1) <= delay_setting.max_s);
+      const bool in_range = !with_delay || (candidate(candidate.size() - 1) >= 0.0 &&
+                                            candidate(candidate.size() - 1) <= delay_setting.max_s);
       if (in_range && candidate.allFinite() && StableDenominator(Unpack(d, candidate).a)) {
         Eigen::VectorXd candidate_rho;
         Residuals(d, candidate, delay_setting, &candidate_rho, nullptr);
@@ -415,8 +416,7 @@ double DetectFundamental_Hz(const DataSegment& segment) {
   const double low_V = quantile(0.02), high_V = quantile(0.98);
   const double range_V = high_V - low_V;
   if (!(range_V > 1e-12 * std::max(1.0, std::abs(high_V))))
-    throw InputError("input is not periodic: the voltage is constant at " + Format(high_V) +
-                     " V");
+    throw InputError("input is not periodic: the voltage is constant at " + Format(high_V) + " V");
   const double mid_V = 0.5 * (low_V + high_V), hysteresis_V = 0.1 * range_V;
 
   // Schmitt trigger: the state flips when the voltage passes mid +- hysteresis; the
@@ -448,11 +448,11 @@ double DetectFundamental_Hz(const DataSegment& segment) {
     for (size_t i = 1; i < crossings->size(); ++i) {
       const double interval_s = (*crossings)[i] - (*crossings)[i - 1];
       if (std::abs(interval_s - rough_period_s) > tolerance_s)
-        throw InputError("input is not periodic: " +
-                         std::string(crossings == &rising_s ? "rising" : "falling") +
-                         " crossings of the mid level " + Format(mid_V) + " V are " +
-                         Format(interval_s) + " s apart at t = " + Format((*crossings)[i]) +
-                         " s, the mean period is " + Format(rough_period_s) + " s");
+        throw InputError(
+            "input is not periodic: " + std::string(crossings == &rising_s ? "rising" : "falling") +
+            " crossings of the mid level " + Format(mid_V) + " V are " + Format(interval_s) +
+            " s apart at t = " + Format((*crossings)[i]) + " s, the mean period is " +
+            Format(rough_period_s) + " s");
     }
   }
   // Least squares over both edge types: t = t_edge + P c with one intercept per type and
@@ -489,25 +489,26 @@ std::vector<FrequencyPoint> EstimateFrequencyResponse(const DataSegment& segment
   const double nyquist_Hz = 0.5 / dt_s;
   if (fundamental_Hz > kMaxNyquistFraction * nyquist_Hz)
     throw InputError("fundamental " + Format(fundamental_Hz) + " Hz is above 0.8 Nyquist (" +
-                     Format(kMaxNyquistFraction * nyquist_Hz) + " Hz at dt = " +
-                     Format(dt_s) + " s)");
+                     Format(kMaxNyquistFraction * nyquist_Hz) + " Hz at dt = " + Format(dt_s) +
+                     " s)");
 
   // Window: whole periods after the discarded ones.
   const double period_samples = 1.0 / (fundamental_Hz * dt_s);
   const auto total = static_cast<double>(segment.voltage_V.size());
-  const double nominal_start = discard_periods * period_samples;
-  const double start = std::round(nominal_start);
+  double start = std::round(discard_periods * period_samples);
   // A recording that ends less than one sample short of a whole period still counts it
-  // (the fundamental is only known to about a sample per recording).
+  // (the fundamental is only known to about a sample per recording): the window then
+  // starts up to a sample earlier, so that it always holds whole periods.
   const int periods =
       start < total ? static_cast<int>(std::floor((total - start + 1.0) / period_samples)) : 0;
   if (periods < 2)
     throw InputError("recording holds " + Format(total / period_samples, 3) + " periods of " +
                      Format(fundamental_Hz) + " Hz; need discard_periods + 2 = " +
                      std::to_string(discard_periods + 2) + " whole ones");
+  const double window = std::min(std::round(periods * period_samples), total);
+  start = std::max(0.0, std::min(start, total - window));
   const auto begin = static_cast<Eigen::Index>(start);
-  const auto length = static_cast<Eigen::Index>(
-      std::min(std::round(periods * period_samples), total - start));
+  const auto length = static_cast<Eigen::Index>(window);
 
   Eigen::MatrixXd signals(length, 2);  // u, y on the window
   for (Eigen::Index i = 0; i < length; ++i) {
@@ -520,35 +521,44 @@ std::vector<FrequencyPoint> EstimateFrequencyResponse(const DataSegment& segment
                      Format(static_cast<double>(begin) * dt_s) +
                      " s): is the dead time longer than the recording?");
 
-  // Trend from the period means (header): a periodic signal adds only its mean to every
-  // period mean, so the trend cannot take anything from the harmonics, measured or not.
-  // Sample i stands for [i, i + 1) (sample units from the window start); period j is
-  // [j P, (j + 1) P); boundary samples are shared by overlap.
-  const int degree = std::min(kTrendDegree, periods - 1);
+  // Trend from sub-period means (header): each period is cut into `parts` cells of at
+  // least 4 samples; the cell means are a periodic pattern (one value per part: whatever
+  // the periodic signal is, measured harmonics or not) plus the trend's Legendre terms
+  // 1..degree, fitted by least squares (parts * periods equations, parts + degree
+  // unknowns). Sample i stands for [i, i + 1) in sample units from the window start;
+  // samples on a cell boundary are shared by overlap.
+  const int parts =
+      std::clamp(static_cast<int>(std::floor(period_samples / 4.0)), 1, kTrendPartsPerPeriod);
+  const int degree = std::min(kTrendDegree, parts * (periods - 1));
+  const int cells = parts * periods;
+  const double cell_samples = period_samples / parts;
   Eigen::MatrixXd legendre(length, degree + 1);
   for (Eigen::Index i = 0; i < length; ++i) {
     const double x = 2.0 * (static_cast<double>(i) + 0.5) / static_cast<double>(length) - 1.0;
     Legendre(x, degree, legendre.row(i).data(), length);
   }
-  Eigen::MatrixXd period_means = Eigen::MatrixXd::Zero(periods, degree + 1 + 2);
-  Eigen::VectorXd period_weight = Eigen::VectorXd::Zero(periods);
+  // Columns: Legendre 1..degree, then the signals u, y; rows: the cells' means.
+  Eigen::MatrixXd cell_means = Eigen::MatrixXd::Zero(cells, degree + 2);
+  Eigen::VectorXd cell_weight = Eigen::VectorXd::Zero(cells);
   for (Eigen::Index i = 0; i < length; ++i) {
     const double cell_begin = static_cast<double>(i);
-    const int j = std::min(periods - 1, static_cast<int>(std::floor(cell_begin / period_samples)));
-    const double boundary = (j + 1) * period_samples;
+    const int j = std::min(cells - 1, static_cast<int>(std::floor(cell_begin / cell_samples)));
+    const double boundary = (j + 1) * cell_samples;
     const double w_first = std::clamp(boundary - cell_begin, 0.0, 1.0);
-    for (int period = j; period <= std::min(j + 1, periods - 1); ++period) {
-      const double w = period == j ? w_first : 1.0 - w_first;
+    for (int cell = j; cell <= std::min(j + 1, cells - 1); ++cell) {
+      const double w = cell == j ? w_first : 1.0 - w_first;
       if (w <= 0.0) continue;
-      period_means.row(period).head(degree + 1) += w * legendre.row(i);
-      period_means.row(period).tail(2) += w * signals.row(i);
-      period_weight(period) += w;
+      cell_means.row(cell).head(degree) += w * legendre.row(i).tail(degree);
+      cell_means.row(cell).tail(2) += w * signals.row(i);
+      cell_weight(cell) += w;
     }
   }
-  for (int j = 0; j < periods; ++j) period_means.row(j) /= period_weight(j);
-  const Eigen::MatrixXd trend_coefficients =
-      period_means.leftCols(degree + 1).colPivHouseholderQr().solve(period_means.rightCols(2));
-  const Eigen::MatrixXd detrended = signals - legendre * trend_coefficients;
+  for (int j = 0; j < cells; ++j) cell_means.row(j) /= cell_weight(j);
+  Eigen::MatrixXd design = Eigen::MatrixXd::Zero(cells, degree + parts);
+  design.leftCols(degree) = cell_means.leftCols(degree);
+  for (int j = 0; j < cells; ++j) design(j, degree + j % parts) = 1.0;
+  const Eigen::MatrixXd solution = design.colPivHouseholderQr().solve(cell_means.rightCols(2));
+  const Eigen::MatrixXd detrended = signals - legendre.rightCols(degree) * solution.topRows(degree);
 
   // Harmonics: least squares on the detrended signals with a constant and cos / sin of
   // every harmonic up to max_harmonic below 0.8 Nyquist (on whole periods these columns
@@ -577,6 +587,27 @@ std::vector<FrequencyPoint> EstimateFrequencyResponse(const DataSegment& segment
   const Eigen::MatrixXd r_inverse =
       r_upper.triangularView<Eigen::Upper>().solve(Eigen::MatrixXd::Identity(columns, columns));
   const Eigen::MatrixXd covariance = r_inverse * r_inverse.transpose();
+
+  // The whole estimate is linear in the signal: coefficients = W (I - T A) x, with
+  // W = C M^T the least-squares operator, A (cells x L) the cell averaging and T (L x
+  // cells) the trend fitted to cell means. Its rows r give the variance under white noise
+  // exactly, trend noise included: var = sigma^2 |r|^2 (with C alone it would be missed;
+  // for a long period and degree-4 trend it is comparable to the harmonic's own).
+  const Eigen::MatrixXd design_inverse =
+      design.colPivHouseholderQr().solve(Eigen::MatrixXd::Identity(cells, cells));
+  const Eigen::MatrixXd least_squares = covariance * regressors.transpose();  // W, p x L
+  const Eigen::MatrixXd w_trend =
+      (least_squares * legendre.rightCols(degree)) * design_inverse.topRows(degree);  // p x cells
+  Eigen::MatrixXd operator_rows = least_squares;                                      // W (I - T A)
+  for (Eigen::Index i = 0; i < length; ++i) {
+    const double cell_begin = static_cast<double>(i);
+    const int j = std::min(cells - 1, static_cast<int>(std::floor(cell_begin / cell_samples)));
+    const double w_first = std::clamp((j + 1) * cell_samples - cell_begin, 0.0, 1.0);
+    for (int cell = j; cell <= std::min(j + 1, cells - 1); ++cell) {
+      const double w = cell == j ? w_first : 1.0 - w_first;
+      if (w > 0.0) operator_rows.col(i) -= w_trend.col(cell) * (w / cell_weight(cell));
+    }
+  }
 
   auto amplitude = [&](int column, int h) {
     const Eigen::Index c = trend + 2 * (h - 1);
@@ -617,7 +648,8 @@ std::vector<FrequencyPoint> EstimateFrequencyResponse(const DataSegment& segment
 
     const double sigma2 = bins > 0 ? noise_power / bins / static_cast<double>(length) : 0.0;
     const Eigen::Index c = trend + 2 * (h - 1);
-    const double var_y = sigma2 * (covariance(c, c) + covariance(c + 1, c + 1));
+    const double var_y =
+        sigma2 * (operator_rows.row(c).squaredNorm() + operator_rows.row(c + 1).squaredNorm());
 
     // Zero-order-hold correction (header): G(j w) = G_d j w dt / (1 - e^{-j w dt}).
     const Complex zoh = Complex(0.0, omega_dt) / (1.0 - std::polar(1.0, -omega_dt));
@@ -659,8 +691,8 @@ FrequencyFit FitFrequencyResponse(const std::vector<FrequencyPoint>& points,
   const int m = options.num_zeros, n = options.num_poles;
   const int parameters = m + 1 + n + (with_delay ? 1 : 0);
   const int values = 2 * static_cast<int>(points.size());
-  const std::string structure = std::to_string(m) + " zeros / " + std::to_string(n) +
-                                " poles" + (with_delay ? " + delay" : "");
+  const std::string structure = std::to_string(m) + " zeros / " + std::to_string(n) + " poles" +
+                                (with_delay ? " + delay" : "");
   if (values < parameters)
     throw InputError("too few frequency points: " + std::to_string(points.size()) +
                      " points give " + std::to_string(values) + " real values, fewer than the " +
@@ -689,14 +721,28 @@ FrequencyFit FitFrequencyResponse(const std::vector<FrequencyPoint>& points,
     d.var.push_back(2.0 * sd * sd);
   }
   std::string notes;
-  // Variance floor: points without an uncertainty, or with one at rounding level, would
-  // otherwise get unbounded weight.
+  // Points without an uncertainty take the median variance of the others (all of them
+  // without: unweighted, variance 1); a floor at rounding level keeps every weight finite.
+  std::vector<double> given;
+  for (double v : d.var)
+    if (v > 0.0) given.push_back(v);
+  double median_var = 1.0;
+  if (!given.empty()) {
+    std::nth_element(given.begin(), given.begin() + static_cast<std::ptrdiff_t>(given.size() / 2),
+                     given.end());
+    median_var = given[given.size() / 2];
+  }
+  const size_t without = d.var.size() - given.size();
   for (size_t k = 0; k < d.var.size(); ++k) {
-    if (!any_uncertainty) d.var[k] = 1.0;
+    if (!(d.var[k] > 0.0)) d.var[k] = median_var;
     const double floor = std::pow(1e-9 * std::abs(d.g[k]), 2) + std::pow(1e-12 * g_max, 2);
     d.var[k] = std::max(d.var[k], floor > 0.0 ? floor : 1e-300);
   }
-  if (!any_uncertainty) notes += " The points carry no uncertainty: unweighted fit.";
+  if (!any_uncertainty)
+    notes += " The points carry no uncertainty: unweighted fit.";
+  else if (without > 0)
+    notes += " " + std::to_string(without) +
+             " point(s) without an uncertainty took the median variance of the others.";
   d.omega_ref = std::sqrt(omega_min * omega_max);
   for (double omega : d.omega) d.s.emplace_back(0.0, omega / d.omega_ref);
 
@@ -801,9 +847,9 @@ FrequencyFit FitFrequencyResponse(const std::vector<FrequencyPoint>& points,
     Eigen::VectorXd residual;
     Residuals(d, theta, free_delay, &residual, nullptr);
     const double optimum_chi2 = residual.squaredNorm();
-    const size_t centre = static_cast<size_t>(std::clamp(
-        std::llround(theta(parameters - 1) / options.delay_step_s), 0LL,
-        static_cast<long long>(grid_s.size()) - 1));
+    const size_t centre =
+        static_cast<size_t>(std::clamp(std::llround(theta(parameters - 1) / options.delay_step_s),
+                                       0LL, static_cast<long long>(grid_s.size()) - 1));
     const Eigen::VectorXd optimum = theta.head(rational_parameters);
     for (int direction : {1, -1}) {
       Eigen::VectorXd start = optimum;
@@ -869,14 +915,16 @@ FrequencyFit FitFrequencyResponse(const std::vector<FrequencyPoint>& points,
     const int power = m - j;
     const double value = final_rational.b(power) * factor(power);
     result.tf.num[static_cast<size_t>(j)] = value;
-    result.coefficients.push_back({"b" + std::to_string(j), value, half_width(power, factor(power))});
+    result.coefficients.push_back(
+        {"b" + std::to_string(j), value, half_width(power, factor(power))});
   }
   result.tf.den[0] = 1.0;
   for (int j = 1; j <= n; ++j) {  // a_j multiplies s^{n-j}
     const int power = n - j;
     const double value = final_rational.a(power) * factor(power);
     result.tf.den[static_cast<size_t>(j)] = value;
-    result.coefficients.push_back({"a" + std::to_string(j), value, half_width(m + 1 + power, factor(power))});
+    result.coefficients.push_back(
+        {"a" + std::to_string(j), value, half_width(m + 1 + power, factor(power))});
   }
   result.tf.delay_s = delay_s;
 
@@ -916,7 +964,7 @@ FrequencyFit FitFrequencyResponse(const std::vector<FrequencyPoint>& points,
       const bool local_minimum = (i == 0 || profile_chi2[i] <= profile_chi2[i - 1]) &&
                                  (i + 1 == grid_s.size() || profile_chi2[i] <= profile_chi2[i + 1]);
       if (local_minimum && (grid_s[i] < profile_lo || grid_s[i] > profile_hi) &&
-          profile_chi2[i] <= chi2 + 25.0 * variance_factor)
+          profile_chi2[i] <= chi2 + kCompetingChi2 * variance_factor)
         competing.push_back({profile_chi2[i] - chi2, grid_s[i]});
     }
     std::sort(competing.begin(), competing.end());
@@ -959,10 +1007,8 @@ FrequencyFit FitFrequencyResponse(const std::vector<FrequencyPoint>& points,
           g_re(index[static_cast<size_t>(i)]) = dp.real();
           g_im(index[static_cast<size_t>(i)]) = dp.imag();
         }
-        estimate.re_half_width_95 =
-            kZ975 * std::sqrt(std::max(0.0, g_re.dot(covariance * g_re)));
-        estimate.im_half_width_95 =
-            kZ975 * std::sqrt(std::max(0.0, g_im.dot(covariance * g_im)));
+        estimate.re_half_width_95 = kZ975 * std::sqrt(std::max(0.0, g_re.dot(covariance * g_re)));
+        estimate.im_half_width_95 = kZ975 * std::sqrt(std::max(0.0, g_im.dot(covariance * g_im)));
       }
       result.poles.push_back(estimate);
     }
@@ -971,15 +1017,15 @@ FrequencyFit FitFrequencyResponse(const std::vector<FrequencyPoint>& points,
 
   // Report.
   std::string report = "Frequency fit (Levy + Sanathanan-Koerner, Golubev-style): " + structure +
-                       "; " + std::to_string(points.size()) + " points (" +
-                       std::to_string(values) + " real values) over " + Format(omega_min) +
-                       " .. " + Format(omega_max) + " rad/s; " + std::to_string(parameters) +
-                       " parameters, " + std::to_string(dof) + " degrees of freedom.";
+                       "; " + std::to_string(points.size()) + " points (" + std::to_string(values) +
+                       " real values) over " + Format(omega_min) + " .. " + Format(omega_max) +
+                       " rad/s; " + std::to_string(parameters) + " parameters, " +
+                       std::to_string(dof) + " degrees of freedom.";
   report += " omega_ref " + Format(d.omega_ref) + " rad/s.";
   if (with_delay)
     report += " Delay grid 0 .. " + Format(options.max_delay_s) + " s step " +
-              Format(options.delay_step_s) + " s: best chi2 " + Format(grid_chi2) + "; T = " +
-              Format(delay_s) + " s, profile 95 % range " + Format(profile_lo) + " .. " +
+              Format(options.delay_step_s) + " s: best chi2 " + Format(grid_chi2) +
+              "; T = " + Format(delay_s) + " s, profile 95 % range " + Format(profile_lo) + " .. " +
               Format(profile_hi) + " s.";
   report += " SK iterations <= " + std::to_string(sk_max_iterations) + ", LM iterations " +
             std::to_string(lm_iterations) + "; chi2 " + Format(chi2) + ", weighted rms error " +
@@ -987,8 +1033,8 @@ FrequencyFit FitFrequencyResponse(const std::vector<FrequencyPoint>& points,
   if (!competing.empty()) {
     report += " WARNING delay ambiguous: chi2(T) has competing minima at";
     for (size_t i = 0; i < std::min<size_t>(competing.size(), 5); ++i)
-      report += std::string(i ? "," : "") + " T = " + Format(competing[i].second) +
-                " s (chi2 +" + Format(competing[i].first, 3) + ")";
+      report += std::string(i ? "," : "") + " T = " + Format(competing[i].second) + " s (chi2 +" +
+                Format(competing[i].first, 3) + ")";
     report += "; the delay interval is that of the best valley.";
   }
   if (reflected > 0)
@@ -996,17 +1042,21 @@ FrequencyFit FitFrequencyResponse(const std::vector<FrequencyPoint>& points,
               " unstable pole(s) reflected into the left half-plane during the SK iterations.";
   report += notes;
   if (dof == 0)
-    report += " WARNING exactly determined: as many parameters as real data values, the fit "
-              "interpolates and cannot show a misfit.";
+    report +=
+        " WARNING exactly determined: as many parameters as real data values, the fit "
+        "interpolates and cannot show a misfit.";
   else if (dof < parameters)
-    report += " WARNING barely determined: " + std::to_string(dof) +
-              " degrees of freedom for " + std::to_string(parameters) + " parameters.";
+    report += " WARNING barely determined: " + std::to_string(dof) + " degrees of freedom for " +
+              std::to_string(parameters) + " parameters.";
   std::vector<std::string> undetermined_names;
   for (int j = 0; j < parameters; ++j)
     if (undetermined[static_cast<size_t>(j)]) {
-      if (j <= m) undetermined_names.push_back("b" + std::to_string(m - j));
-      else if (j < m + 1 + n) undetermined_names.push_back("a" + std::to_string(n - (j - m - 1)));
-      else undetermined_names.push_back("delay_s");
+      if (j <= m)
+        undetermined_names.push_back("b" + std::to_string(m - j));
+      else if (j < m + 1 + n)
+        undetermined_names.push_back("a" + std::to_string(n - (j - m - 1)));
+      else
+        undetermined_names.push_back("delay_s");
     }
   if (!undetermined_names.empty()) {
     report += " WARNING underdetermined: the points do not determine";
@@ -1045,9 +1095,9 @@ FrequencyFit IdentifyFromSquareWaves(const std::vector<DataSegment>& recordings,
   for (size_t r = 0; r < recordings.size(); ++r) {
     try {
       const double f0_Hz = DetectFundamental_Hz(recordings[r]);
-      const int discard = std::max(
-          square_wave.discard_periods,
-          static_cast<int>(std::ceil(square_wave.min_discard_s * f0_Hz - 1e-9)));
+      const int discard =
+          std::max(square_wave.discard_periods,
+                   static_cast<int>(std::ceil(square_wave.min_discard_s * f0_Hz - 1e-9)));
       const std::vector<FrequencyPoint> found =
           EstimateFrequencyResponse(recordings[r], f0_Hz, square_wave.max_harmonic, discard);
       points.insert(points.end(), found.begin(), found.end());

@@ -15,13 +15,16 @@
 //    that follows, L = round(n P / dt) samples (P / dt need not be an integer; a recording
 //    that ends less than one sample short of the last period still counts it).
 //    Trend: what is left of the transient is taken out by a Legendre polynomial in time of
-//    degree min(3, n - 1), fitted to the n period means of the signal (each the exact
-//    mean over [j P, (j + 1) P), boundary samples shared by overlap). A periodic signal adds
-//    only its mean to every period mean, so the trend takes nothing from the harmonics,
-//    measured or not (a joint least-squares fit of polynomials and a truncated set of
-//    harmonics would: the unmodelled harmonics of a square wave leak through the
-//    polynomials, 1 % errors observed). Modes slower than a period are smooth over the
-//    window; modes faster than a period have died in the discarded periods.
+//    degree min(4, q (n - 1)), fitted to the means of quarter periods (q = 4 cells per
+//    period; fewer when a period has under 16 samples) together with one free value per
+//    quarter: a periodic signal, whatever its harmonics, measured or not, gives the same
+//    quarter means in every period, so that pattern absorbs it and the polynomial takes
+//    only the aperiodic part. (A joint least-squares fit of polynomials and a truncated set
+//    of harmonics would not: a square wave's unmodelled harmonics leak through the
+//    polynomials, 1 % errors observed; plain period means allow only degree n - 1, which
+//    left the 8 V model's 115 s mode biasing the slowest points.) Modes much slower than a
+//    period are smooth over the window; modes faster than a period have died in the
+//    discarded periods. The same operator is applied to u and y.
 //    Harmonics: least squares on the detrended u and y with a constant and cos / sin of
 //    omega_h t for h = 1..max_harmonic (on whole periods: the DFT at the lines). The
 //    harmonic h of a signal is X_h = alpha_h - j beta_h of alpha_h cos + beta_h sin, and
@@ -55,15 +58,18 @@
 //    n so no harmonic line, bin index above the trend degree) give e_i = R_y - G_d(h) R_u:
 //    output noise plus input noise seen through G, plus whatever of the transient and of
 //    the aliased input lines the model does not explain. sigma_h^2 = mean |e_i|^2 / L is
-//    the equivalent white-noise variance near the line, var(Y_h - G U_h) = sigma_h^2
-//    (C_aa + C_bb) with C = (M^T M)^{-1} of the regressors, and var(G) = that / |U_h|^2
-//    (times the ZOH factor squared): a circular complex error with per-component standard
-//    deviation s = sqrt(var(G) / 2) (FrequencyPoint::std_dev) and nu = 2 (number of bins)
-//    degrees of freedom. Gain and phase half-widths (95 %) are q s and q s / |G| with q
-//    the Student-t quantile; when the 95 % disc |G - G_hat| <= r (r^2 = 2 s^2 F_{2,nu}(0.95))
-//    contains 0 the phase is not resolved: the gain half-width becomes r and the phase
-//    half-width pi. (The trend's own noise is neglected: it is averaged over P / dt
-//    samples per period mean.)
+//    the equivalent white-noise variance near the line. The estimate is linear in the
+//    signal, (alpha_h, beta_h) = rows r_a, r_b of W (I - T A) applied to it (W = the least-
+//    squares operator, A the cell averaging, T the trend fit), so var(Y_h - G U_h) =
+//    sigma_h^2 (|r_a|^2 + |r_b|^2) exactly, the trend's own noise included (for a long
+//    period it is as large as the harmonic's), and var(G) = that / |U_h|^2 (times the ZOH
+//    factor squared): a circular complex error with per-component standard deviation
+//    s = sqrt(var(G) / 2) (FrequencyPoint::std_dev) and nu = 2 (number of bins) degrees of
+//    freedom. Gain and phase half-widths (95 %) are q s and q s / |G| with q the Student-t
+//    quantile; when the 95 % disc |G - G_hat| <= r (r^2 = 2 s^2 F_{2,nu}(0.95)) contains 0
+//    the phase is not resolved: the gain half-width becomes r and the phase half-width pi.
+//    Checked on the 8 V model at 0.0025 and 0.02 Hz (200 noise draws each): the spread of
+//    the estimates matches s to within 10 %, biases are below s / 4.
 //
 // 2. Fit (FitFrequencyResponse), for each dead time T on a grid over [0, max_delay_s]:
 //    H_k = G_k e^{+j omega_k T}; Levy's linear least squares min sum w_k |B(s'_k) -
@@ -90,9 +96,10 @@
 //    delay's interval is the profile's, {T : chi^2(T) <= chi^2_min + 3.84 max(1,
 //    chi^2 / dof)}, ends interpolated between grid points: the profile, not the Jacobian,
 //    because chi^2(T) is far from quadratic where the delay trades off against a fast mode.
-//    Local minima of the profile outside that interval but within Delta chi^2 <= 25
-//    max(1, chi^2 / dof) are reported as competing delays (the interval is then that of
-//    the best valley only).
+//    Local minima of the profile outside that interval but within Delta chi^2 <= 9
+//    max(1, chi^2 / dof) (3 sigma) are reported as competing delays (the interval is then
+//    that of the best valley only; with the 8 V model under 1 % noise the true delay sat in
+//    such a competing valley in 4 of the 5 draws in 20 whose interval missed it).
 //
 // Identifiability (SEED-NOTES.md): each point gives two real numbers; 3 zeros / 4 poles
 // and a delay are 9 parameters, so fewer than 5 points is an error, and the report says
@@ -100,10 +107,13 @@
 // ill-conditioned or rank-deficient (naming the undetermined coefficients), when the
 // points misfit (chi^2 / dof > 4), which poles lie outside the measured band (such poles
 // are extrapolated, not measured), and which pairs are lightly damped. With the seed's
-// 8 V model and its seven square waves (1.1 Hz sampled at 100 Hz), the DC gain and the
-// two slow poles come back within 1-2 % even under 1 % output noise; the lightly damped
-// pair at 19.2 rad/s (between 6.9 and 20.7 rad/s, where the gain is ~0.3 % of DC) and the
-// dead time do not, beyond noise-free data (frequency_response_test.cc).
+// 8 V model and its seven square waves (1.1 Hz sampled at 100 Hz, 3 analysed periods
+// each), the DC gain and the two slow poles come back within 2 % even under 1 % output
+// noise. The lightly damped pair at 19.2 rad/s lies between 6.9 and 20.7 rad/s, where the
+// gain is 0.03-0.15 % of DC: noise-free it comes back (frequency 0.01 %, real part 2 %),
+// at 0.3 % noise its frequency to ~1 rad/s and its damping not at all, at 1 % neither.
+// The dead time: to +-0.1 s at 0.3 % noise, to +-1-2 s with competing valleys at 1 %
+// (frequency_response_test.cc).
 
 #pragma once
 
@@ -127,7 +137,8 @@ struct FrequencyPoint {
   int periods = 0;                       // whole periods in the analysis window
   int harmonic = 1;                      // h
   // Standard deviation s of Re and of Im of `response` (mm/V), the fit's weight. 0 (points
-  // from elsewhere): FitFrequencyResponse takes s = gain_half_width_95 / 1.96.
+  // from elsewhere): FitFrequencyResponse takes s = gain_half_width_95 / 1.96, and if that
+  // is 0 too, the median variance of the other points (unweighted if none has one).
   double std_dev = 0.0;
 };
 
@@ -136,27 +147,29 @@ struct FrequencyPoint {
 // instead). Throws std::invalid_argument for fundamental_Hz not finite and > 0,
 // max_harmonic < 1 or discard_periods < 0; InputError (one line) for a bad segment (sample
 // period, lengths, non-finite values), a fundamental above 0.8 Nyquist, fewer than
-// discard_periods + 2 whole periods, or an input without a component at f0.
+// discard_periods + 2 whole periods, a constant input or output over the window (the
+// latter: a dead time longer than the recording), or an input without a component at f0.
 std::vector<FrequencyPoint> EstimateFrequencyResponse(const DataSegment& segment,
-                                                      double fundamental_Hz,
-                                                      int max_harmonic = 5,
+                                                      double fundamental_Hz, int max_harmonic = 5,
                                                       int discard_periods = 1);
 
 // Fundamental of a periodic input (Hz), from the crossings of its mid level (halfway
-// between the 2nd and 98th percentiles) with a hysteresis of 10 % of that range:
-// f0 = (number of rising crossings - 1) / (t_last - t_first), crossings interpolated
-// linearly between samples. Throws InputError naming the problem if the input is
-// constant, crosses its mid level fewer than three times upwards (not two periods), or its
-// crossing intervals vary by more than max(5 % of the period, 1.5 dt) (not periodic).
+// between the 2nd and 98th percentiles) with a hysteresis of 10 % of that range,
+// interpolated linearly between samples: the period is the least-squares slope of the
+// crossing times against their cycle index (rising and falling edges, one intercept
+// each), so edges quantised to the sample grid average out (error ~dt / (periods P)).
+// Throws InputError naming the problem if the input is constant, crosses its mid level
+// fewer than three times upwards (not two periods), or its crossing intervals vary by
+// more than max(5 % of the period, 1.5 dt) (not periodic).
 double DetectFundamental_Hz(const DataSegment& segment);
 
 struct FrequencyFitOptions {
-  int num_zeros = 3;          // m (0 <= m <= n)
-  int num_poles = 4;          // n (>= 1); lower orders are what few points support
-  double max_delay_s = 10.0;  // dead-time search range [0, max_delay_s]; 0: no delay
-  int sk_iterations = 20;     // Sanathanan-Koerner iterations per grid delay (>= 1)
+  int num_zeros = 3;           // m (0 <= m <= n)
+  int num_poles = 4;           // n (>= 1); lower orders are what few points support
+  double max_delay_s = 10.0;   // dead-time search range [0, max_delay_s]; 0: no delay
+  int sk_iterations = 20;      // Sanathanan-Koerner iterations per grid delay (>= 1)
   double delay_step_s = 0.05;  // grid step of the dead-time search (> 0)
-  bool refine = true;          // golden section on T, then Levenberg-Marquardt
+  bool refine = true;          // profile polish, golden section, Levenberg-Marquardt (header, 2a-d)
   // True if every field is finite and in range; otherwise false with a one-line reason
   // in *error (if error is not null).
   bool IsValid(std::string* error) const;
@@ -173,7 +186,7 @@ struct FrequencyFit {
   // Poles (Poles(tf) order) with 95 % half-widths by the delta method,
   // dp/da_i = -p^{n-i} / A'(p); +inf where the coefficients are not determined.
   std::vector<PoleEstimate> poles;
-  std::string method_report;                    // orders, grid, conditioning, warnings
+  std::string method_report;  // orders, grid, conditioning, warnings
 };
 
 // Fits the model of the header (step 2). Throws std::invalid_argument for invalid options

@@ -751,7 +751,23 @@ TfEstimate IdentifyTransferFunction(const std::vector<DataSegment>& segments,
   const double dt_s = CheckSegments(segments, options);
   const int n = options.num_poles, m = options.num_zeros;
   const int na = n, nb = n + 1;
-  const std::vector<Deviations> deviations = MakeDeviations(segments);
+  // Stages 1-3 only give the output-error fit its start: on long records they use the
+  // leading part of each segment, at most kInitialSamples fitted samples in all.
+  constexpr size_t kInitialSamples = 30000;
+  size_t total = 0;
+  for (const DataSegment& seg : segments) total += seg.voltage_V.size() - seg.fit_begin;
+  std::vector<DataSegment> initial = segments;
+  if (total > kInitialSamples) {
+    const double keep = static_cast<double>(kInitialSamples) / static_cast<double>(total);
+    for (DataSegment& seg : initial) {
+      const size_t fitted = seg.voltage_V.size() - seg.fit_begin;
+      const size_t size =
+          seg.fit_begin + static_cast<size_t>(std::ceil(keep * static_cast<double>(fitted)));
+      seg.voltage_V.resize(size);
+      seg.deflection_mm.resize(size);
+    }
+  }
+  const std::vector<Deviations> deviations = MakeDeviations(initial);
 
   // Stage 1-2: whole-sample delay and poles. The equation-error delay is exact on clean
   // data but biased under noise; the output-error scan with the resulting poles is not,
@@ -762,7 +778,7 @@ TfEstimate IdentifyTransferFunction(const std::vector<DataSegment>& segments,
               : static_cast<int>(std::floor(options.fixed_delay_s / dt_s + 1e-9));
   // A mode slower than ten record lengths cannot be told from a drift: clamp it there.
   size_t longest = 0;
-  for (const DataSegment& seg : segments) longest = std::max(longest, seg.voltage_V.size());
+  for (const DataSegment& seg : initial) longest = std::max(longest, seg.voltage_V.size());
   const double slowest_rad_s = 0.1 / (dt_s * static_cast<double>(longest));
   auto clamp_slow = [slowest_rad_s](std::vector<Complex> poles) {
     for (Complex& p : poles)
@@ -774,7 +790,7 @@ TfEstimate IdentifyTransferFunction(const std::vector<DataSegment>& segments,
   std::vector<double> a;
   DenominatorAndDerivative(factor_params.data(), n, &a, nullptr);
   if (options.estimate_delay) {
-    const int scanned = ScanDelay(segments, a, m, d_max);
+    const int scanned = ScanDelay(initial, a, m, d_max);
     if (scanned != d) {
       d = scanned;
       factor_params = ParametersFromPoles(clamp_slow(LinearPoles(deviations, na, nb, d, dt_s)), n);
@@ -790,7 +806,7 @@ TfEstimate IdentifyTransferFunction(const std::vector<DataSegment>& segments,
     for (double fraction : {0.0, 0.25, 0.5, 0.75}) {
       std::vector<double> trial_b;
       const double trial_delay = (d + fraction) * dt_s;
-      const double ssr = FitNumerator(segments, a, trial_delay, m, &trial_b);
+      const double ssr = FitNumerator(initial, a, trial_delay, m, &trial_b);
       if (ssr < best) {
         best = ssr;
         b = trial_b;
@@ -798,8 +814,17 @@ TfEstimate IdentifyTransferFunction(const std::vector<DataSegment>& segments,
       }
     }
   } else {
-    FitNumerator(segments, a, delay_s, m, &b);
+    FitNumerator(initial, a, delay_s, m, &b);
   }
+
+  // Ceres aborts the process on an empty or non-finite start: refuse it here instead.
+  auto all_finite = [](const std::vector<double>& v) {
+    return !v.empty() && std::all_of(v.begin(), v.end(), [](double x) { return std::isfinite(x); });
+  };
+  if (!all_finite(b) || !all_finite(factor_params) || !std::isfinite(delay_s))
+    throw std::runtime_error(
+        "identification failed: the linear initial estimate is not finite (is the recording "
+        "long enough and the input exciting?)");
 
   // Stage 4: output-error refinement, from the linear estimate and, when given, from a
   // neighbouring model (options.start).
@@ -809,7 +834,7 @@ TfEstimate IdentifyTransferFunction(const std::vector<DataSegment>& segments,
   SolveOutputError(segments, m, n, options.estimate_delay, options.max_delay_s,
                    options.max_iterations, &b, &factor_params, &delay_s, &initial_voltages_V,
                    &summary);
-  if (options.start && Order(*options.start) == n &&
+  if (options.start && Order(*options.start) == n && IsStable(*options.start) &&
       static_cast<int>(TrimLeadingZeros(options.start->num).size()) <= m + 1) {
     const TransferFunction start = Normalised(*options.start);
     std::vector<double> start_b(static_cast<size_t>(m) + 1, 0.0);

@@ -3,7 +3,8 @@
 //
 //   G(s) = e^{-T s} (b0 s^m + ... + b_m) / (s^n + a1 s^{n-1} + ... + a_n),  m < n.
 //
-// Method (each stage's output is the next stage's start):
+// Method (each stage's output is the next stage's start; stages 1-3 use at most the
+// leading 30,000 fitted samples, stage 4 all of them):
 //  1. Coarse dead time: discrete ARX(n, n+1) least squares for every whole-sample delay
 //     d in [0, max_delay]; the d with the least residual is floor(T / dt).
 //  2. Linear initial estimate at that d: ARX, then Steiglitz-McBride iterations (least

@@ -47,8 +47,8 @@ std::vector<double> SquareWave(double frequency_Hz, double dt_s, double duration
 
 // `periods` periods of a square wave through `truth` (exact ZOH simulation), with white
 // output noise of standard deviation noise_fraction * max |y|.
-DataSegment Record(const TransferFunction& truth, double frequency_Hz, double dt_s,
-                   double periods, double noise_fraction = 0.0, unsigned seed = 1) {
+DataSegment Record(const TransferFunction& truth, double frequency_Hz, double dt_s, double periods,
+                   double noise_fraction = 0.0, unsigned seed = 1) {
   DataSegment seg;
   seg.dt_s = dt_s;
   seg.voltage_V = SquareWave(frequency_Hz, dt_s, periods / frequency_Hz);
@@ -73,8 +73,8 @@ std::vector<DataSegment> SevenSquareWaves(const TransferFunction& truth, double 
   std::vector<DataSegment> recordings;
   for (double f_Hz : kSeedFrequencies_Hz) {
     const double discard = std::max(1.0, std::ceil(settle_s * f_Hz - 1e-9));
-    recordings.push_back(Record(truth, f_Hz, f_Hz > 0.5 ? 0.01 : 0.1, discard + periods,
-                                noise_fraction, seed++));
+    recordings.push_back(
+        Record(truth, f_Hz, f_Hz > 0.5 ? 0.01 : 0.1, discard + periods, noise_fraction, seed++));
   }
   return recordings;
 }
@@ -153,9 +153,10 @@ TEST(FrequencyResponse, FirstOrderSquareWaveMatchesAnalyticAfterZohCorrection) {
       const double wk = w + k * omega_s;
       aliasing += std::abs(continuous(wk) / continuous(w)) * w / std::abs(wk);
     }
-    std::cout << "h " << p.harmonic << ": vs sampled system " << RelativeError(p.response, sampled * zoh)
-              << ", vs G(jw) " << RelativeError(p.response, continuous(w)) << " (aliasing bound "
-              << aliasing << "), uncorrected " << RelativeError(sampled, continuous(w)) << "\n";
+    std::cout << "h " << p.harmonic << ": vs sampled system "
+              << RelativeError(p.response, sampled * zoh) << ", vs G(jw) "
+              << RelativeError(p.response, continuous(w)) << " (aliasing bound " << aliasing
+              << "), uncorrected " << RelativeError(sampled, continuous(w)) << "\n";
     // The estimator returns the sampled system's response times the ZOH factor: 1e-4
     // covers the RK4 error (~1e-10) and what the trend leaves of the start-up transient
     // (e^{-20/3} of it at the window start).
@@ -193,8 +194,9 @@ TEST(FrequencyResponse, FirstOrderSineWithNonIntegerPeriod) {
   const auto points = EstimateFrequencyResponse(seg, f_Hz);
   ASSERT_EQ(points.size(), 1u);  // a sine has no harmonics
   const Complex truth = gain / Complex(1.0, points[0].omega_rad_s * tau_s);
-  // Tolerance: the window is 967.7 samples rounded to 968, so the edge term of the DFT
-  // is of order 1 / L; observed 1e-4.
+  // Tolerance: aliasing at 0.19 rad/s is 7e-5 (the bound of the previous test); three
+  // periods are 967.7 samples, rounded to 968, an edge term of order 1 / L at most.
+  // Observed 6e-5.
   EXPECT_LT(RelativeError(points[0].response, truth), 3e-4);
 }
 
@@ -235,8 +237,8 @@ TEST(FrequencyResponse, FitRecoversLowOrderTruthFromExactPoints) {
   FrequencyFitOptions options;
   options.num_zeros = 1;
   options.num_poles = 2;
-  const FrequencyFit fit = FitFrequencyResponse(ExactPoints(LowOrderTruth(), frequencies_Hz, 1e-3),
-                                                options);
+  const FrequencyFit fit =
+      FitFrequencyResponse(ExactPoints(LowOrderTruth(), frequencies_Hz, 1e-3), options);
   ASSERT_EQ(fit.tf.num.size(), 2u);
   ASSERT_EQ(fit.tf.den.size(), 3u);
   EXPECT_NEAR(fit.tf.num[0], 2.0, 1e-6);
@@ -262,6 +264,11 @@ TEST(FrequencyResponse, FitWithoutDelay) {
   EXPECT_NEAR(fit.tf.den[1], 1.0 / 3.0, 1e-8);
   EXPECT_EQ(fit.tf.delay_s, 0.0);
   EXPECT_EQ(fit.coefficients.size(), 2u);  // b0, a1: no delay
+  // Points without any uncertainty: an unweighted fit, said so.
+  auto bare = ExactPoints(lag, {0.01, 0.05, 0.1, 0.5}, 0.0);
+  const FrequencyFit unweighted = FitFrequencyResponse(bare, options);
+  EXPECT_NEAR(unweighted.dc_gain.value, 2.0, 1e-8);
+  EXPECT_NE(unweighted.method_report.find("unweighted"), std::string::npos);
 }
 
 // -----------------------------------------------------------------------------------------
@@ -299,9 +306,9 @@ TEST(FrequencyResponse, LowOrderTruthFromSevenSquareWaves) {
 // -0.0714 rad/s (time constants 115 s and 14 s), a lightly damped pair at -0.255 +- 19.16j
 // (3.05 Hz, damping 0.013) and DC gain 8.66. The pair lies between the 1.1 Hz fundamental
 // (6.9 rad/s) and its 3rd harmonic (20.7 rad/s); only the 1.1 Hz recording (at 100 Hz)
-// reaches it, and there the gain is 0.3 % of DC (0.0026 at 6.9 rad/s, 0.013 at 20.7).
-// 30 s of settling is far less than the 115 s time constant: the period-mean trend takes
-// the rest of the transient.
+// reaches it, where the gain is 0.03 % (6.9 rad/s) to 0.15 % (20.7 rad/s) of DC. The
+// slowest pole is below the lowest point (0.0157 rad/s): the DC gain is an extrapolation.
+// 30 s of settling is far less than the 115 s time constant: the trend takes the rest.
 TEST(FrequencyResponse, Seed8VNoiseFree) {
   const TransferFunction truth = SeedModel8V();
   SquareWaveOptions square;
@@ -315,18 +322,25 @@ TEST(FrequencyResponse, Seed8VNoiseFree) {
   ASSERT_EQ(poles.size(), 4u);
   EXPECT_NEAR(poles[0].re, -0.008675, 0.05 * 0.008675);
   EXPECT_NEAR(poles[1].re, -0.071426, 0.05 * 0.071426);
-  // Noise-free, even the pair's frequency comes back (observed 0.05 %); its damping does
-  // not (observed 0.015 vs 0.013): the points bracket the peak without sampling it.
-  EXPECT_NEAR(std::hypot(poles[2].re, poles[2].im), 19.161, 0.02 * 19.161);
+  // Noise-free, even the pair comes back (observed: frequency to 0.01 %, real part to
+  // 2 %) and the report flags it; the dead time carries a 0.7 % bias (3.646 s, outside its
+  // own +-0.008 s): what the ZOH correction leaves (aliasing) and the sampled square
+  // waves' edge jitter at 1.1 Hz are not in the points' uncertainty.
+  EXPECT_NEAR(std::hypot(poles[2].re, poles[2].im), 19.161, 0.01 * 19.161);
+  EXPECT_NEAR(poles[2].re, -0.2549, 0.25 * 0.2549);
   EXPECT_NE(fit.method_report.find("Lightly damped pair"), std::string::npos);
-  EXPECT_NEAR(fit.tf.delay_s, 3.67, 0.05 * 3.67);
+  EXPECT_NEAR(fit.tf.delay_s, 3.67, 0.02 * 3.67);
 }
 
-// 1 % white output noise (of the peak deflection, ~20 mm): DC gain and slow poles are
-// still within 2 % and 5 % and inside their 95 % intervals; the fast pair is not
-// determined (its frequency lands anywhere in 17..26 rad/s over noise draws, its damping
-// interval spans zero) and the dead time is only known to ~+-1.5 s: its profile interval
-// is reported, and over 10 draws it held 3.67 s in all (0.3 % noise: 9 of 10).
+// 1 % white output noise (of each recording's peak deflection): DC gain and slow poles
+// stay within 2 % and 5 % and inside their 95 % intervals; the fast pair is not determined
+// (over noise draws its frequency lands anywhere in 16..26 rad/s, its damping interval
+// spans zero) and the dead time only to +-1..2 s, with competing valleys of chi^2(T) named
+// in the report. Over 20 draws (this test's set-up, other seeds) the 95 % intervals held
+// the truth for the DC gain 18 times, the slow poles 18 and 14, the delay 15 (in 4 of the
+// other 5 the true delay's valley was reported as competing); worst errors DC 0.6 %, slow
+// poles 0.8 % and 1.9 %. At 0.3 % noise: 18, 19, 19 and 19 of 20, the pair's frequency
+// within ~1 rad/s, its damping still not determined.
 TEST(FrequencyResponse, Seed8VWithOnePercentNoise) {
   const TransferFunction truth = SeedModel8V();
   SquareWaveOptions square;
@@ -338,6 +352,8 @@ TEST(FrequencyResponse, Seed8VWithOnePercentNoise) {
   EXPECT_LE(std::abs(fit.dc_gain.value - DcGain(truth)), fit.dc_gain.half_width_95);
   const auto poles = PolesByMagnitude(fit);
   ASSERT_EQ(poles.size(), 4u);
+  // The two slowest by magnitude are the real slow poles here (in some draws the free
+  // pair falls below them; this draw's does not).
   EXPECT_NEAR(poles[0].re, -0.008675, 0.05 * 0.008675);
   EXPECT_NEAR(poles[1].re, -0.071426, 0.05 * 0.071426);
   EXPECT_LE(std::abs(poles[0].re + 0.008675), poles[0].re_half_width_95);
