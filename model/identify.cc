@@ -274,6 +274,40 @@ void DenominatorAndDerivative(const double* p, int n, std::vector<double>* a,
   }
 }
 
+// The band of modes the data can tell apart from a drift or a static gain: no slower
+// than a tenth of the inverse record length, no faster than twice the Nyquist frequency.
+// Bounds on the factor parameters (log c) keep every pole inside it; a pole far outside
+// would also make the output-derivative realisation stiff (Markov parameters growing like
+// |p|^k) and its simulation inaccurate.
+struct FactorBounds {
+  std::vector<double> lower, upper;  // per factor parameter (log c)
+};
+
+FactorBounds BoundsFor(int n, double dt_s, size_t longest_samples) {
+  const double fastest_rad_s = 2.0 * M_PI / dt_s;
+  const double slowest_rad_s =
+      0.1 / (dt_s * static_cast<double>(std::max<size_t>(longest_samples, 1)));
+  FactorBounds bounds;
+  for (int i = 0; i + 1 < n; i += 2) {
+    // s^2 + c1 s + c0: c0 = |p|^2 between slowest^2 and fastest^2; c1 = 2 zeta |p| up to
+    // 2 fastest (a real pair can reach c1 ~ fastest + slowest), with no useful lower bound
+    // beyond keeping it positive.
+    bounds.lower.insert(bounds.lower.end(), {std::log(1e-12), 2.0 * std::log(slowest_rad_s)});
+    bounds.upper.insert(bounds.upper.end(),
+                        {std::log(2.0 * fastest_rad_s), 2.0 * std::log(fastest_rad_s)});
+  }
+  if (n % 2 == 1) {
+    bounds.lower.push_back(std::log(slowest_rad_s));
+    bounds.upper.push_back(std::log(fastest_rad_s));
+  }
+  return bounds;
+}
+
+void ClampToBounds(const FactorBounds& bounds, std::vector<double>* params) {
+  for (size_t i = 0; i < params->size(); ++i)
+    (*params)[i] = std::clamp((*params)[i], bounds.lower[i], bounds.upper[i]);
+}
+
 std::vector<double> ParametersFromPoles(std::vector<Complex> poles, int n) {
   // Clamp to the open left half-plane, then pair: complex conjugates together, real
   // poles by magnitude.
@@ -514,6 +548,14 @@ void SolveOutputError(const std::vector<DataSegment>& segments, int m, int n, bo
     if (seg.estimate_initial_voltage) blocks.push_back(&(*initial_voltages_V)[i]);
     problem.AddResidualBlock(new SegmentCost(seg, m, n), nullptr, blocks);
     fitted_samples += seg.voltage_V.size() - seg.fit_begin;
+  }
+  size_t longest = 0;
+  for (const DataSegment& seg : segments) longest = std::max(longest, seg.voltage_V.size());
+  const FactorBounds bounds = BoundsFor(n, segments.front().dt_s, longest);
+  ClampToBounds(bounds, factor_params);
+  for (int i = 0; i < n; ++i) {
+    problem.SetParameterLowerBound(factor_params->data(), i, bounds.lower[static_cast<size_t>(i)]);
+    problem.SetParameterUpperBound(factor_params->data(), i, bounds.upper[static_cast<size_t>(i)]);
   }
   if (estimate_delay) {
     problem.SetParameterLowerBound(delay_s, 0, 0.0);

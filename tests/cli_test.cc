@@ -159,6 +159,13 @@ TEST_F(Cli, IdentifyRejectsBadRecordingsAndOptions) {
   EXPECT_NE(r.err.find("--structure"), std::string::npos) << r.err;
   r = Run("identify " + scratch_.File("flat.csv") + " --zeros 4 --poles 4");
   EXPECT_EQ(r.exit_code, 2);
+  r = Run("identify " + scratch_.File("flat.csv") + " --structure physics --geometry 40x8");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("--geometry"), std::string::npos) << r.err;
+  r = Run("identify " + scratch_.File("flat.csv") +
+          " --structure physics --predict-geometry 0x8x2");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("--predict-geometry"), std::string::npos) << r.err;
 }
 
 }  // namespace

@@ -76,6 +76,35 @@ TEST(IdentifyTs, StaircaseBlendBeatsEverySingleLevelModelOnValidation) {
             estimate.leave_one_level_out.front().in_sample_rmse_mm);
 }
 
+TEST(IdentifyTs, BlendBetweenIdentifiedLevelsStaysPhysical) {
+  // Between identified levels every frozen model is stable and its DC gain lies between
+  // the neighbouring local gains; a step from one level to the next moves the output
+  // monotonically towards the new steady state, without a spike.
+  const Recording data = Staircase({0, 2, 4, 6, 8, 0}, 400.0, 0.005, 3, "staircase.csv");
+  const TsEstimate estimate = IdentifyTsModel({data});
+  ASSERT_EQ(estimate.local.size(), 4u);
+  for (size_t i = 0; i + 1 < estimate.local.size(); ++i) {
+    const double low = DcGain(estimate.local[i].estimate.tf),
+                 high = DcGain(estimate.local[i + 1].estimate.tf);
+    for (double w = 0.05; w < 1.0; w += 0.05) {
+      const double z = (1 - w) * estimate.local[i].level_V + w * estimate.local[i + 1].level_V;
+      const TransferFunction frozen = FrozenModelAt(estimate.model, z);
+      EXPECT_TRUE(IsStable(frozen)) << z << " V";
+      EXPECT_GE(DcGain(frozen), std::min(low, high) - 1e-9) << z << " V";
+      EXPECT_LE(DcGain(frozen), std::max(low, high) + 1e-9) << z << " V";
+    }
+  }
+  // 3 V held until steady, then 5 V (both between levels).
+  std::vector<double> u(30000, 3.0);
+  std::fill(u.begin() + 15000, u.end(), 5.0);
+  const std::vector<double> y = SimulateUniform(estimate.model, kDt_s, u);
+  const double before = y[14999], after = y.back();
+  for (size_t k = 15000; k < y.size(); ++k) {
+    ASSERT_GT(y[k], before - 0.02 * (after - before)) << k;
+    ASSERT_LT(y[k], after + 0.02 * (after - before)) << k;
+  }
+}
+
 TEST(IdentifyTs, TwoSquareWaveRecordingsGiveTwoLevels) {
   // With the held scheduling, a 0 <-> 8 V square wave of the blend is the 8 V model alone.
   TsModel truth = SeedTsModel();

@@ -40,6 +40,7 @@ struct IdentifyArgs {
   std::string structure = "free";
   std::string method = "time";
   std::string geometry_mm = "40x8x2";
+  std::string predict_geometry_mm;
 };
 
 json Number(double value) { return std::isfinite(value) ? json(value) : json(nullptr); }
@@ -119,14 +120,17 @@ model::DataSegment WholeRecording(const model::Recording& rec) {
   return seg;
 }
 
-model::PhysicalParameters GeometryStart(const std::string& text) {
+// "LxWxh" in mm -> the same parameters for a beam of that geometry (C_dl scaled with the
+// face area, model/physics.h).
+model::PhysicalParameters WithGeometryText(const model::PhysicalParameters& reference,
+                                           const std::string& option, const std::string& text) {
   double l = 0, w = 0, h = 0;
   char x1 = 0, x2 = 0;
   std::istringstream in(text);
   if (!(in >> l >> x1 >> w >> x2 >> h) || x1 != 'x' || x2 != 'x' || !(l > 0 && w > 0 && h > 0) ||
-      !in.eof())
-    throw UsageError("--geometry: expected LxWxh in mm, e.g. 40x8x2, got \"" + text + "\"");
-  return model::WithGeometry(model::SeedS1Parameters(), l * 1e-3, w * 1e-3, h * 1e-3);
+      !std::isfinite(l + w + h) || !in.eof())
+    throw UsageError(option + ": expected LxWxh in mm, e.g. 40x8x2, got \"" + text + "\"");
+  return model::WithGeometry(reference, l * 1e-3, w * 1e-3, h * 1e-3);
 }
 
 void Emit(const IdentifyArgs& args, const model::ModelDocument& doc) {
@@ -218,7 +222,10 @@ void RunFree(const IdentifyArgs& args, model::ModelDocument* doc,
 
 void RunPhysics(const IdentifyArgs& args, model::ModelDocument* doc,
                 const std::vector<model::Recording>& recordings) {
-  const model::PhysicalParameters start = GeometryStart(args.geometry_mm);
+  const model::PhysicalParameters start =
+      WithGeometryText(model::SeedS1Parameters(), "--geometry", args.geometry_mm);
+  if (!args.predict_geometry_mm.empty())  // checked before the fit
+    WithGeometryText(start, "--predict-geometry", args.predict_geometry_mm);
   std::vector<model::DataSegment> segments;
   for (const auto& rec : recordings) segments.push_back(WholeRecording(rec));
   model::GreyBoxOptions options;
@@ -248,6 +255,30 @@ void RunPhysics(const IdentifyArgs& args, model::ModelDocument* doc,
     table.Print(std::cout, "    ");
     std::cout << "  (intervals wider than the value mean the data do not determine that parameter; "
                  "model/greybox.h)\n";
+  }
+  if (!args.predict_geometry_mm.empty()) {
+    // Another beam of the same material: the fitted parameters at its geometry, driven by
+    // the first recording's voltage.
+    const model::PhysicalParameters other =
+        WithGeometryText(e.parameters, "--predict-geometry", args.predict_geometry_mm);
+    const std::vector<double> y =
+        model::PredictDeflection_mm(other, e.delay_s, options.terms, segments.front());
+    const std::vector<double> y_here =
+        model::PredictDeflection_mm(e.parameters, e.delay_s, options.terms, segments.front());
+    auto peak = [](const std::vector<double>& v) {
+      double p = 0.0;
+      for (double x : v) p = std::max(p, std::abs(x));
+      return p;
+    };
+    doc->extra["prediction"] = {{"geometry_mm", args.predict_geometry_mm},
+                                {"recording", args.recordings.front()},
+                                {"peak_deflection_mm", peak(y)},
+                                {"peak_deflection_fitted_geometry_mm", peak(y_here)}};
+    if (!args.as_json)
+      std::cout << "  prediction for " << args.predict_geometry_mm << " mm under "
+                << args.recordings.front() << "'s voltage: peak deflection "
+                << FormatNumber(peak(y), 4) << " mm (fitted beam: " << FormatNumber(peak(y_here), 4)
+                << " mm)\n";
   }
   AddValidation(args, model::SingleRule(deflection), doc);
 }
@@ -336,11 +367,15 @@ void RegisterIdentifyCommand(CLI::App& app) {
                   "time (output error) or frequency (square-wave frequency responses)");
   cmd->add_option("--geometry", args->geometry_mm,
                   "Beam LxWxh in mm for --structure physics (default 40x8x2)");
+  cmd->add_option(
+      "--predict-geometry", args->predict_geometry_mm,
+      "With --structure physics: predict a beam of this LxWxh (mm) of the same material");
   cmd->footer(
       "Examples:\n"
       "  flexid identify run-2V.csv run-8V.csv --out s1.json --validate check.csv\n"
       "  flexid identify staircase.csv --json > model.json\n"
-      "  flexid identify square-5V.csv --structure physics --geometry 40x8x2");
+      "  flexid identify square-5V.csv --structure physics --geometry 40x8x2 --predict-geometry "
+      "20x8x2");
   cmd->callback([args] { RunIdentify(*args); });
 }
 
