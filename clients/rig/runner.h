@@ -1,0 +1,59 @@
+// Plays a Rig's sample stream onto the bus: paces it against the wall clock, decides
+// which messages go out, counts them. The bus itself is behind BusSink, so tests can
+// record the messages instead of sending them (rig_main.cc has the LCM sink).
+//
+// Per sample, in this order: the voltage message if the sample says publish_voltage, then
+// the deflection message, both with the sample's utime. With trial control, a trial start
+// at the first sample's utime goes before everything and a trial stop at the end of the
+// last published sample's interval after everything.
+//
+// Pacing: sample k goes out at wall time start + t_k / speed; speed 0 publishes as fast as
+// possible. Message time never depends on the speed.
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <string>
+
+#include "clients/rig/rig.h"
+
+namespace flexid::rig {
+
+enum class TrialAction { kStart, kStop };
+
+class BusSink {
+ public:
+  virtual ~BusSink() = default;
+  // Each returns false if the message could not be sent.
+  virtual bool PublishVoltage(int64_t utime, double voltage_V) = 0;
+  virtual bool PublishDeflection(int64_t utime, double deflection_mm) = 0;
+  virtual bool PublishTrialControl(int64_t utime, TrialAction action,
+                                   const std::string& protocol) = 0;
+};
+
+struct RunOptions {
+  double speed = 1.0;          // times real time; 0: no pacing. 0 or finite and >= 1e-3.
+  bool trial_control = false;  // publish trial start and stop
+};
+
+struct RunSummary {
+  int64_t samples = 0;              // samples played (all of them unless interrupted)
+  int64_t voltage_messages = 0;     // sent (failed ones are not counted here)
+  int64_t deflection_messages = 0;  // sent
+  int64_t trial_messages = 0;       // sent
+  int64_t failed_messages = 0;      // the sink returned false
+  double duration_s = 0.0;          // message time covered: samples / rate_Hz
+  int64_t final_utime = 0;          // utime of the last sample played (0: none)
+  double wall_s = 0.0;              // wall-clock time the run took
+  bool interrupted = false;         // *stop became true before the last sample
+};
+
+// Plays every sample of `rig` (or until *stop is true; checked at least every 100 ms).
+RunSummary RunRig(Rig& rig, BusSink& sink, const RunOptions& options,
+                  const std::atomic<bool>* stop = nullptr);
+
+// One line: "published 100 samples (100 deflection, 10 voltage, 2 trial-control
+// messages) covering 10 s of message time in 0.0021 s, final utime 1700000009900000".
+std::string SummaryLine(const RunSummary& summary);
+
+}  // namespace flexid::rig

@@ -1,0 +1,192 @@
+#include "daemon/config.h"
+
+#include <toml++/toml.h>
+
+#include <cmath>
+#include <regex>
+#include <set>
+#include <sstream>
+
+namespace flexid::daemon {
+namespace {
+
+[[noreturn]] void Fail(const std::string& where, const std::string& problem) {
+  throw ConfigError(where + ": " + problem);
+}
+
+void CheckKeys(const toml::table& table, const std::set<std::string>& known,
+               const std::string& where) {
+  for (const auto& [key, value] : table) {
+    (void)value;
+    if (!known.count(std::string(key.str())))
+      Fail(where, "unknown setting \"" + std::string(key.str()) + "\"");
+  }
+}
+
+template <typename T>
+void Read(const toml::table& table, const char* key, const std::string& where, T* out) {
+  const toml::node* node = table.get(key);
+  if (!node) return;
+  if constexpr (std::is_same_v<T, bool>) {
+    if (!node->is_boolean()) Fail(where + "." + key, "expected true or false");
+    *out = **node->as_boolean();
+  } else if constexpr (std::is_same_v<T, std::string>) {
+    if (!node->is_string()) Fail(where + "." + key, "expected a string");
+    *out = **node->as_string();
+  } else if constexpr (std::is_integral_v<T>) {
+    if (!node->is_integer()) Fail(where + "." + key, "expected an integer");
+    *out = static_cast<T>(**node->as_integer());
+  } else {
+    if (node->is_integer())
+      *out = static_cast<T>(**node->as_integer());
+    else if (node->is_floating_point())
+      *out = static_cast<T>(**node->as_floating_point());
+    else
+      Fail(where + "." + key, "expected a number");
+  }
+}
+
+}  // namespace
+
+Config LoadConfigFile(const std::string& path) {
+  toml::table root;
+  try {
+    root = toml::parse_file(path);
+  } catch (const toml::parse_error& e) {
+    std::ostringstream where;
+    where << path << ":" << e.source().begin.line << ":" << e.source().begin.column;
+    Fail(where.str(), std::string(e.description()));
+  }
+  Config c;
+  CheckKeys(root,
+            {"daemon_id", "database", "lcm_url", "channel_prefix", "log_file", "log_level",
+             "commit_interval_ms", "auto_trials", "trial_idle_stop_s", "accept_unknown_actuators",
+             "max_message_bytes", "actuators", "identification", "alerts"},
+            path);
+  Read(root, "daemon_id", path, &c.daemon_id);
+  Read(root, "database", path, &c.database);
+  Read(root, "lcm_url", path, &c.lcm_url);
+  Read(root, "channel_prefix", path, &c.channel_prefix);
+  Read(root, "log_file", path, &c.log_file);
+  Read(root, "log_level", path, &c.log_level);
+  Read(root, "commit_interval_ms", path, &c.commit_interval_ms);
+  Read(root, "auto_trials", path, &c.auto_trials);
+  Read(root, "trial_idle_stop_s", path, &c.trial_idle_stop_s);
+  Read(root, "accept_unknown_actuators", path, &c.accept_unknown_actuators);
+  Read(root, "max_message_bytes", path, &c.max_message_bytes);
+  if (const toml::table* id = root["identification"].as_table()) {
+    const std::string where = path + ": identification";
+    CheckKeys(*id, {"zeros", "poles", "max_delay_s", "latest_trials"}, where);
+    Read(*id, "zeros", where, &c.identification.zeros);
+    Read(*id, "poles", where, &c.identification.poles);
+    Read(*id, "max_delay_s", where, &c.identification.max_delay_s);
+    Read(*id, "latest_trials", where, &c.identification.latest_trials);
+  }
+  if (const toml::table* alerts = root["alerts"].as_table()) {
+    const std::string where = path + ": alerts";
+    CheckKeys(*alerts,
+              {"false_alarms_per_hour", "noise_mm", "min_hold_s", "settle_s", "min_effect_mm",
+               "dropout_s", "rest_band_V"},
+              where);
+    Read(*alerts, "false_alarms_per_hour", where, &c.alerts.false_alarms_per_hour);
+    Read(*alerts, "noise_mm", where, &c.alerts.noise_mm);
+    Read(*alerts, "min_hold_s", where, &c.alerts.min_hold_s);
+    Read(*alerts, "settle_s", where, &c.alerts.settle_s);
+    Read(*alerts, "min_effect_mm", where, &c.alerts.min_effect_mm);
+    Read(*alerts, "dropout_s", where, &c.alerts.dropout_s);
+    Read(*alerts, "rest_band_V", where, &c.alerts.rest_band_V);
+  }
+  if (const toml::array* actuators = root["actuators"].as_array()) {
+    for (size_t i = 0; i < actuators->size(); ++i) {
+      const std::string where = path + ": actuators[" + std::to_string(i) + "]";
+      const toml::table* a = (*actuators)[i].as_table();
+      if (!a) Fail(where, "expected a table");
+      CheckKeys(*a,
+                {"id", "length_mm", "width_mm", "thickness_mm", "pattern", "material",
+                 "electrolyte", "concentration_M"},
+                where);
+      storage::Actuator actuator;
+      Read(*a, "id", where, &actuator.id);
+      Read(*a, "length_mm", where, &actuator.length_mm);
+      Read(*a, "width_mm", where, &actuator.width_mm);
+      Read(*a, "thickness_mm", where, &actuator.thickness_mm);
+      Read(*a, "pattern", where, &actuator.pattern);
+      Read(*a, "material", where, &actuator.material);
+      Read(*a, "electrolyte", where, &actuator.electrolyte);
+      Read(*a, "concentration_M", where, &actuator.concentration_M);
+      c.actuators.push_back(actuator);
+    }
+  } else if (root.contains("actuators")) {
+    Fail(path + ": actuators", "expected an array of tables ([[actuators]])");
+  }
+  return c;
+}
+
+bool IsValidId(const std::string& id) {
+  static const std::regex pattern("[A-Za-z0-9_.-]{1,64}");
+  return std::regex_match(id, pattern);
+}
+
+void Validate(const Config& c) {
+  if (!IsValidId(c.daemon_id)) Fail("daemon_id", "expected 1-64 characters of [A-Za-z0-9_.-]");
+  if (c.database.empty()) Fail("database", "must not be empty");
+  if (c.lcm_url.empty()) Fail("lcm_url", "must not be empty");
+  if (!IsValidId(c.channel_prefix))
+    Fail("channel_prefix", "expected 1-64 characters of [A-Za-z0-9_.-]");
+  if (c.commit_interval_ms < 1 || c.commit_interval_ms > 200)
+    Fail("commit_interval_ms", "must be 1..200 (DESIGN.md: loss window <= 200 ms)");
+  if (!(c.trial_idle_stop_s > 0.0) || !std::isfinite(c.trial_idle_stop_s))
+    Fail("trial_idle_stop_s", "must be finite and > 0");
+  if (c.max_message_bytes < 256 || c.max_message_bytes > (64 << 20))
+    Fail("max_message_bytes", "must be 256 .. 64 MiB");
+  static const std::set<std::string> levels = {"trace", "debug", "info", "warn", "error"};
+  if (!levels.count(c.log_level)) Fail("log_level", "expected trace, debug, info, warn or error");
+  const IdentificationConfig& id = c.identification;
+  if (id.poles < 1 || id.poles > 8 || id.zeros < 0 || id.zeros >= id.poles)
+    Fail("identification", "need 1 <= poles <= 8 and 0 <= zeros < poles");
+  if (!(id.max_delay_s >= 0.0) || !std::isfinite(id.max_delay_s))
+    Fail("identification.max_delay_s", "must be finite and >= 0");
+  if (id.latest_trials < 1) Fail("identification.latest_trials", "must be >= 1");
+  std::string why;
+  if (!c.alerts.IsValid(&why)) Fail("alerts", why);
+  std::set<std::string> seen;
+  for (const storage::Actuator& a : c.actuators) {
+    if (!IsValidId(a.id))
+      Fail("actuators", "id \"" + a.id + "\": expected 1-64 characters of [A-Za-z0-9_.-]");
+    if (!seen.insert(a.id).second) Fail("actuators", "id \"" + a.id + "\" appears twice");
+    for (double v : {a.length_mm, a.width_mm, a.thickness_mm})
+      if (!(v > 0.0) || !std::isfinite(v))
+        Fail("actuators." + a.id, "dimensions must be finite and > 0");
+  }
+}
+
+std::vector<std::string> Describe(const Config& c) {
+  std::vector<std::string> lines = {
+      "daemon_id: " + c.daemon_id,
+      "database: " + c.database,
+      "lcm_url: " + c.lcm_url,
+      "channel_prefix: " + c.channel_prefix,
+      "log_file: " + c.log_file + " (level " + c.log_level + ")",
+      "commit_interval_ms: " + std::to_string(c.commit_interval_ms),
+      "auto_trials: " + std::string(c.auto_trials ? "true" : "false") +
+          ", trial_idle_stop_s: " + std::to_string(c.trial_idle_stop_s),
+      "accept_unknown_actuators: " + std::string(c.accept_unknown_actuators ? "true" : "false"),
+      "max_message_bytes: " + std::to_string(c.max_message_bytes),
+      "identification: zeros " + std::to_string(c.identification.zeros) + ", poles " +
+          std::to_string(c.identification.poles) + ", max_delay_s " +
+          std::to_string(c.identification.max_delay_s) + ", latest_trials " +
+          std::to_string(c.identification.latest_trials),
+      "alerts: false_alarms_per_hour " + std::to_string(c.alerts.false_alarms_per_hour) +
+          ", min_hold_s " + std::to_string(c.alerts.min_hold_s) + ", settle_s " +
+          std::to_string(c.alerts.settle_s) + ", dropout_s " + std::to_string(c.alerts.dropout_s)};
+  for (const storage::Actuator& a : c.actuators) {
+    std::ostringstream line;
+    line << "actuator " << a.id << ": " << a.length_mm << " x " << a.width_mm << " x "
+         << a.thickness_mm << " mm, " << a.material << ", " << a.electrolyte << " "
+         << a.concentration_M << " M";
+    lines.push_back(line.str());
+  }
+  return lines;
+}
+
+}  // namespace flexid::daemon

@@ -1,0 +1,939 @@
+#include "daemon/daemon.h"
+
+#include <poll.h>
+#include <signal.h>
+#include <spdlog/sinks/rotating_file_sink.h>
+#include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/spdlog.h>
+#include <sys/eventfd.h>
+#include <sys/signalfd.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <condition_variable>
+#include <deque>
+#include <filesystem>
+#include <flexid/alert_t.hpp>
+#include <flexid/deflection_sample_t.hpp>
+#include <flexid/prediction_t.hpp>
+#include <flexid/rpc_reply_t.hpp>
+#include <flexid/rpc_request_t.hpp>
+#include <flexid/status_t.hpp>
+#include <flexid/trial_control_t.hpp>
+#include <flexid/voltage_sample_t.hpp>
+#include <functional>
+#include <lcm/lcm-cpp.hpp>
+#include <map>
+#include <mutex>
+#include <optional>
+#include <thread>
+
+#include "daemon/rpc.h"
+#include "flexid/version.h"
+#include "model/identify_ts.h"
+#include "model/model_file.h"
+#include "model/simulate.h"
+#include "storage/sample_writer.h"
+
+namespace flexid::daemon {
+namespace {
+
+constexpr int64_t kNoTime = INT64_MIN;
+constexpr int kQueueCapacity = 1 << 17;  // messages per sample subscription
+
+int64_t WallClockUtime() {
+  return std::chrono::duration_cast<std::chrono::microseconds>(
+             std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
+
+// The active model of one actuator, run on the live voltage in message time.
+struct Predictor {
+  int32_t version = 0;  // 0: no model
+  std::optional<model::StreamingSimulator> simulator;
+  int64_t base_utime = kNoTime;  // time origin of the simulator (keeps doubles precise)
+  int64_t last_utime = kNoTime;
+  double last_output_mm = NAN;
+  std::vector<double> memberships;
+
+  bool ready() const { return simulator.has_value(); }
+
+  // Feeds the voltage in force from utime on; returns the prediction at utime.
+  double Step(int64_t utime, double voltage_V) {
+    if (!simulator) return NAN;
+    if (base_utime == kNoTime) base_utime = utime;
+    if (last_utime != kNoTime && utime <= last_utime) utime = last_utime + 1;  // same instant
+    last_output_mm = simulator->Step(1e-6 * static_cast<double>(utime - base_utime), voltage_V);
+    memberships = simulator->memberships();
+    last_utime = utime;
+    return last_output_mm;
+  }
+};
+
+struct ActuatorState {
+  storage::Actuator info;
+  double voltage_V = 0.0;
+  int64_t voltage_utime = kNoTime;
+  int64_t deflection_utime = kNoTime;
+  int64_t trial_id = 0;
+  bool automatic_trial = false;
+  int64_t last_active_utime = kNoTime;  // last voltage outside the rest band
+  int64_t last_sample_utime = kNoTime;
+  Predictor predictor;
+  std::unique_ptr<ResidualMonitor> monitor;
+};
+
+// A finished identification, handed from the worker to the loop.
+struct IdentifyResult {
+  RpcContext request;
+  std::string actuator_id;
+  std::optional<storage::ModelRecord> model;  // stored and active
+  std::string error;
+};
+
+}  // namespace
+
+struct Daemon::Impl {
+  Config config;
+  std::string config_path;
+  storage::Database db;
+  std::unique_ptr<storage::SampleWriter> writer;
+  lcm::LCM lcm;
+  Counters counters;
+  std::map<std::string, ActuatorState> actuators;
+  std::atomic<bool> stop{false};
+  int signal_fd = -1;
+  int wake_fd = -1;
+  std::chrono::steady_clock::time_point started = std::chrono::steady_clock::now();
+  std::chrono::steady_clock::time_point next_status = started;
+
+  // Identification worker: one job at a time; a second request while one runs is "busy".
+  std::thread worker;
+  std::mutex worker_mutex;
+  std::condition_variable worker_wake;
+  std::optional<std::function<IdentifyResult()>> job;
+  std::deque<IdentifyResult> finished;
+  std::atomic<bool> identifying{false};
+  bool worker_exit = false;
+
+  Impl(Config c, std::string path)
+      : config(std::move(c)),
+        config_path(std::move(path)),
+        db(storage::Database::Open(config.database)),
+        lcm(config.lcm_url) {
+    if (!lcm.good()) throw std::runtime_error("cannot join the LCM bus at " + config.lcm_url);
+    const int interrupted = db.MarkRecordingTrialsInterrupted();
+    if (interrupted > 0)
+      spdlog::warn("trials left recording by an earlier run marked interrupted [count: {}]",
+                   interrupted);
+    for (const storage::Actuator& a : config.actuators) {
+      db.UpsertActuator(a);
+      AddActuator(a);
+    }
+    for (const storage::Actuator& a : db.Actuators())
+      if (!actuators.count(a.id)) AddActuator(a);
+    storage::SampleWriterOptions options;
+    options.commit_interval = std::chrono::milliseconds(config.commit_interval_ms);
+    writer = std::make_unique<storage::SampleWriter>(config.database, options);
+
+    // LCM keeps at most 30 undispatched messages per subscription by default and drops
+    // the rest silently; 16 actuators at 500 Hz need far more between two loop passes.
+    const std::string& p = config.channel_prefix;
+    lcm.subscribeFunction(p + "/.*/VOLTAGE", &Impl::OnVoltageThunk, this)
+        ->setQueueCapacity(kQueueCapacity);
+    lcm.subscribeFunction(p + "/.*/DEFLECTION", &Impl::OnDeflectionThunk, this)
+        ->setQueueCapacity(kQueueCapacity);
+    lcm.subscribeFunction(p + "/RPC/REQUEST", &Impl::OnRequestThunk, this)->setQueueCapacity(1000);
+    lcm.subscribeFunction(p + "/TRIAL", &Impl::OnTrialControlThunk, this)->setQueueCapacity(1000);
+
+    sigset_t signals;
+    sigemptyset(&signals);
+    sigaddset(&signals, SIGTERM);
+    sigaddset(&signals, SIGINT);
+    sigaddset(&signals, SIGHUP);
+    pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+    signal_fd = signalfd(-1, &signals, SFD_NONBLOCK | SFD_CLOEXEC);
+    wake_fd = eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
+    if (signal_fd < 0 || wake_fd < 0)
+      throw std::runtime_error("cannot create signal or wake descriptors");
+    worker = std::thread([this] { WorkerLoop(); });
+  }
+
+  ~Impl() {
+    {
+      std::lock_guard<std::mutex> lock(worker_mutex);
+      worker_exit = true;
+    }
+    worker_wake.notify_all();
+    if (worker.joinable()) worker.join();
+    if (signal_fd >= 0) close(signal_fd);
+    if (wake_fd >= 0) close(wake_fd);
+  }
+
+  void AddActuator(const storage::Actuator& info) {
+    ActuatorState& state = actuators[info.id];
+    state.info = info;
+    state.monitor = std::make_unique<ResidualMonitor>(info.id, config.alerts);
+    if (const auto record = db.ActiveModel(info.id)) LoadModel(&state, *record);
+  }
+
+  void LoadModel(ActuatorState* state, const storage::ModelRecord& record) {
+    const model::ModelDocument doc =
+        model::ParseModelJson(record.model_json, "model " + std::to_string(record.version));
+    Predictor predictor;
+    predictor.version = record.version;
+    // Start at rest, or in steady state under the voltage in force: a model swapped in
+    // during a hold starts where the actuator is assumed to be.
+    model::SimulationOptions options;
+    options.start_in_steady_state = std::abs(state->voltage_V) > config.alerts.rest_band_V;
+    predictor.simulator.emplace(model::AsTsModel(doc), options);
+    state->predictor = std::move(predictor);
+    // Alert thresholds are calibrated on the residual this model showed when it was
+    // fitted (its RMSE), unless the configuration fixes the noise scale.
+    MonitorOptions monitor_options = config.alerts;
+    const nlohmann::json fit = nlohmann::json::parse(record.fit_json, nullptr, false);
+    if (monitor_options.noise_mm <= 0.0 && fit.is_object() && fit.contains("rmse_mm") &&
+        fit["rmse_mm"].is_number())
+      monitor_options.noise_mm = fit["rmse_mm"].get<double>();
+    state->monitor = std::make_unique<ResidualMonitor>(state->info.id, monitor_options);
+    spdlog::info("model active [actuator: {}, version: {}]", state->info.id, record.version);
+  }
+
+  // ---------------------------------------------------------------------------------------
+  // Bus handlers. Nothing may throw through LCM's C callback: every handler catches at the
+  // edge, logs, counts and goes on.
+  // ---------------------------------------------------------------------------------------
+
+  static void OnVoltageThunk(const lcm::ReceiveBuffer* rbuf, const std::string& channel,
+                             Impl* self) {
+    self->Guarded(channel, [&] { self->OnVoltage(*rbuf, channel); });
+  }
+  static void OnDeflectionThunk(const lcm::ReceiveBuffer* rbuf, const std::string& channel,
+                                Impl* self) {
+    self->Guarded(channel, [&] { self->OnDeflection(*rbuf, channel); });
+  }
+  static void OnRequestThunk(const lcm::ReceiveBuffer* rbuf, const std::string& channel,
+                             Impl* self) {
+    self->Guarded(channel, [&] { self->OnRequest(*rbuf); });
+  }
+  static void OnTrialControlThunk(const lcm::ReceiveBuffer* rbuf, const std::string& channel,
+                                  Impl* self) {
+    self->Guarded(channel, [&] { self->OnTrialControl(*rbuf); });
+  }
+
+  template <typename F>
+  void Guarded(const std::string& channel, F&& handler) {
+    ++counters.messages_received;
+    try {
+      handler();
+    } catch (const std::exception& e) {
+      spdlog::error("handler failed [channel: {}, error: {}]", channel, e.what());
+    } catch (...) {
+      spdlog::error("handler failed [channel: {}]", channel);
+    }
+  }
+
+  // Decodes a message, rejecting oversized and undecodable ones (counted).
+  template <typename Message>
+  bool Decode(const lcm::ReceiveBuffer& rbuf, Message* message) {
+    if (static_cast<int64_t>(rbuf.data_size) > config.max_message_bytes ||
+        message->decode(rbuf.data, 0, static_cast<int>(rbuf.data_size)) !=
+            static_cast<int>(rbuf.data_size)) {
+      ++counters.rejected_malformed;
+      return false;
+    }
+    return true;
+  }
+
+  // The actuator a sample channel names (PREFIX/<id>/KIND), if the message agrees with it
+  // and the actuator is known or may be added.
+  ActuatorState* SampleActuator(const std::string& channel, const std::string& message_id) {
+    const size_t first = config.channel_prefix.size() + 1;
+    const size_t second = channel.find('/', first);
+    if (second == std::string::npos || channel.compare(first, second - first, message_id) != 0) {
+      ++counters.rejected_malformed;  // misaddressed: the channel names another actuator
+      return nullptr;
+    }
+    return KnownOrNewActuator(message_id);
+  }
+
+  // The actuator of that id, added (and stored) when unknown actuators are accepted.
+  ActuatorState* KnownOrNewActuator(const std::string& message_id) {
+    auto it = actuators.find(message_id);
+    if (it != actuators.end()) return &it->second;
+    if (!config.accept_unknown_actuators || !IsValidClientId(message_id)) {
+      ++counters.rejected_unknown_actuator;
+      return nullptr;
+    }
+    storage::Actuator info;
+    info.id = message_id;
+    db.UpsertActuator(info);
+    AddActuator(info);
+    spdlog::info("new actuator [id: {}]", message_id);
+    return &actuators.at(message_id);
+  }
+
+  void OnVoltage(const lcm::ReceiveBuffer& rbuf, const std::string& channel) {
+    flexid::voltage_sample_t message;
+    if (!Decode(rbuf, &message)) return;
+    ActuatorState* state = SampleActuator(channel, message.actuator_id);
+    if (!state) return;
+    if (!std::isfinite(message.voltage_V)) {
+      ++counters.rejected_nonfinite;
+      return;
+    }
+    if (state->voltage_utime != kNoTime && message.utime <= state->voltage_utime) {
+      ++counters.rejected_out_of_order;
+      return;
+    }
+    ++counters.samples_accepted;
+    state->voltage_utime = message.utime;
+    state->voltage_V = message.voltage_V;
+    // Automatic trials: one ends after trial_idle_stop_s without voltage (checked on every
+    // voltage message, also the first after a long gap); one starts when an idle actuator
+    // gets a voltage.
+    const bool active = std::abs(message.voltage_V) > config.alerts.rest_band_V;
+    if (state->automatic_trial && state->last_active_utime != kNoTime &&
+        message.utime - state->last_active_utime >
+            static_cast<int64_t>(config.trial_idle_stop_s * 1e6))
+      StopTrial(state, message.utime, storage::TrialState::kComplete);
+    if (active) state->last_active_utime = message.utime;
+    if (config.auto_trials && active && state->trial_id == 0)
+      StartTrial(state, "automatic", message.utime, true);
+    if (state->predictor.ready()) state->predictor.Step(message.utime, message.voltage_V);
+    Raise(state, state->monitor->OnVoltage(message.utime, message.voltage_V));
+  }
+
+  void OnDeflection(const lcm::ReceiveBuffer& rbuf, const std::string& channel) {
+    flexid::deflection_sample_t message;
+    if (!Decode(rbuf, &message)) return;
+    ActuatorState* state = SampleActuator(channel, message.actuator_id);
+    if (!state) return;
+    if (!std::isfinite(message.deflection_mm)) {
+      ++counters.rejected_nonfinite;
+      return;
+    }
+    if (state->deflection_utime != kNoTime && message.utime <= state->deflection_utime) {
+      ++counters.rejected_out_of_order;
+      return;
+    }
+    ++counters.samples_accepted;
+    state->deflection_utime = message.utime;
+    // Paired with the voltage in force at its time (held since its last message).
+    if (state->trial_id != 0) {
+      if (writer->Enqueue(state->trial_id,
+                          {message.utime, state->voltage_V, message.deflection_mm}))
+        state->last_sample_utime = message.utime;
+      else
+        ++counters.dropped_queue_full;
+    }
+    const double predicted = state->predictor.Step(message.utime, state->voltage_V);
+    const double residual = message.deflection_mm - predicted;
+    flexid::prediction_t out;
+    out.utime = message.utime;
+    out.actuator_id = message.actuator_id;
+    out.voltage_V = state->voltage_V;
+    out.measured_mm = message.deflection_mm;
+    out.predicted_mm = predicted;
+    out.residual_mm = residual;
+    out.model_version = state->predictor.version;
+    out.trial_id = static_cast<int32_t>(state->trial_id);
+    out.memberships = state->predictor.memberships;
+    out.num_memberships = static_cast<int16_t>(out.memberships.size());
+    lcm.publish(config.channel_prefix + "/" + message.actuator_id + "/PREDICTION", &out);
+    ++counters.predictions_published;
+    Raise(state, state->monitor->OnDeflection(message.utime, state->voltage_V, residual));
+  }
+
+  void OnTrialControl(const lcm::ReceiveBuffer& rbuf) {
+    flexid::trial_control_t message;
+    if (!Decode(rbuf, &message)) return;
+    if (message.action != flexid::trial_control_t::kStart &&
+        message.action != flexid::trial_control_t::kStop) {
+      ++counters.rejected_malformed;
+      return;
+    }
+    ActuatorState* state = KnownOrNewActuator(message.actuator_id);
+    if (!state) return;
+    if (state->trial_id != 0) StopTrial(state, message.utime, storage::TrialState::kComplete);
+    if (message.action == flexid::trial_control_t::kStart)
+      StartTrial(state, message.protocol, message.utime, false);
+  }
+
+  void StartTrial(ActuatorState* state, const std::string& protocol, int64_t utime,
+                  bool automatic) {
+    state->trial_id = db.StartTrial(state->info.id, protocol, utime);
+    state->automatic_trial = automatic;
+    state->last_sample_utime = kNoTime;
+    spdlog::info("trial started [actuator: {}, trial: {}, protocol: {}]", state->info.id,
+                 state->trial_id, protocol);
+  }
+
+  void StopTrial(ActuatorState* state, int64_t utime, storage::TrialState how) {
+    const int64_t end = state->last_sample_utime != kNoTime ? state->last_sample_utime : utime;
+    db.EndTrial(state->trial_id, end, how);
+    spdlog::info("trial ended [actuator: {}, trial: {}, state: {}]", state->info.id,
+                 state->trial_id, storage::TrialStateName(how));
+    state->trial_id = 0;
+    state->automatic_trial = false;
+  }
+
+  void Raise(ActuatorState* state, const std::vector<Alert>& alerts) {
+    for (const Alert& alert : alerts) {
+      flexid::alert_t out;
+      out.utime =
+          state->deflection_utime != kNoTime ? state->deflection_utime : state->voltage_utime;
+      out.actuator_id = state->info.id;
+      out.kind = alert.kind;
+      out.severity = static_cast<int8_t>(alert.severity);
+      out.start_utime = alert.start_utime;
+      out.end_utime = alert.end_utime;
+      out.magnitude_mm = alert.magnitude_mm;
+      out.threshold_mm = alert.threshold_mm;
+      out.text = alert.text;
+      lcm.publish(config.channel_prefix + "/ALERT", &out);
+      ++counters.alerts_raised;
+      storage::AlertRecord record{0,
+                                  out.actuator_id,
+                                  out.kind,
+                                  out.severity,
+                                  out.utime,
+                                  out.start_utime,
+                                  out.end_utime,
+                                  out.magnitude_mm,
+                                  out.threshold_mm,
+                                  out.text};
+      db.StoreAlert(record);
+      spdlog::warn("alert [actuator: {}, kind: {}, magnitude_mm: {:.3f}] {}", out.actuator_id,
+                   out.kind, out.magnitude_mm, out.text);
+    }
+  }
+
+  // ---------------------------------------------------------------------------------------
+  // RPC
+  // ---------------------------------------------------------------------------------------
+
+  void OnRequest(const lcm::ReceiveBuffer& rbuf) {
+    flexid::rpc_request_t request;
+    if (!Decode(rbuf, &request)) return;
+    RpcContext context{request.request_id, request.client_id};
+    RpcOutcome outcome = HandleRequest(request);
+    if (outcome.deferred) return;  // identify: answered when the worker finishes
+    Reply(context, outcome);
+  }
+
+  void Reply(const RpcContext& context, const RpcOutcome& outcome) {
+    if (!IsValidClientId(context.client_id)) return;  // nowhere to reply to
+    flexid::rpc_reply_t reply;
+    reply.utime = WallClockUtime();
+    reply.request_id = context.request_id;
+    reply.daemon_id = config.daemon_id;
+    reply.status = outcome.status;
+    reply.result_json = outcome.result.dump();
+    reply.error = outcome.error;
+    lcm.publish(config.channel_prefix + "/RPC/REPLY/" + context.client_id, &reply);
+  }
+
+  RpcOutcome HandleRequest(const flexid::rpc_request_t& request);
+
+  // ---------------------------------------------------------------------------------------
+  // Identification worker
+  // ---------------------------------------------------------------------------------------
+
+  void WorkerLoop() {
+    while (true) {
+      std::function<IdentifyResult()> task;
+      {
+        std::unique_lock<std::mutex> lock(worker_mutex);
+        worker_wake.wait(lock, [this] { return worker_exit || job.has_value(); });
+        if (worker_exit) return;
+        task = std::move(*job);
+        job.reset();
+      }
+      IdentifyResult result = task();
+      {
+        std::lock_guard<std::mutex> lock(worker_mutex);
+        finished.push_back(std::move(result));
+      }
+      identifying = false;
+      const uint64_t one = 1;
+      if (write(wake_fd, &one, sizeof one) < 0) spdlog::error("cannot wake the loop");
+    }
+  }
+
+  bool Submit(std::function<IdentifyResult()> task) {
+    std::lock_guard<std::mutex> lock(worker_mutex);
+    if (identifying) return false;
+    identifying = true;
+    job = std::move(task);
+    worker_wake.notify_one();
+    return true;
+  }
+
+  void DrainFinished() {
+    uint64_t count = 0;
+    if (read(wake_fd, &count, sizeof count) < 0 && errno != EAGAIN)
+      spdlog::error("wake read failed");
+    std::deque<IdentifyResult> done;
+    {
+      std::lock_guard<std::mutex> lock(worker_mutex);
+      done.swap(finished);
+    }
+    for (IdentifyResult& result : done) {
+      if (!result.model) {
+        spdlog::error("identification failed [actuator: {}, error: {}]", result.actuator_id,
+                      result.error);
+        Reply(result.request, {flexid::rpc_reply_t::kFailed, nullptr, result.error, false});
+        continue;
+      }
+      auto it = actuators.find(result.actuator_id);
+      if (it != actuators.end()) LoadModel(&it->second, *result.model);  // hot swap
+      nlohmann::json out = ModelSummary(*result.model);
+      out["model"] = nlohmann::json::parse(result.model->model_json);
+      Reply(result.request, {flexid::rpc_reply_t::kOk, out, "", false});
+    }
+  }
+
+  // ---------------------------------------------------------------------------------------
+  // Loop
+  // ---------------------------------------------------------------------------------------
+
+  void PublishStatus() {
+    flexid::status_t status;
+    status.utime = WallClockUtime();
+    status.daemon_id = config.daemon_id;
+    status.version = kVersion;
+    status.uptime_s =
+        std::chrono::duration_cast<std::chrono::seconds>(std::chrono::steady_clock::now() - started)
+            .count();
+    const Counters c = Snapshot();
+    status.messages_received = c.messages_received;
+    status.samples_accepted = c.samples_accepted;
+    status.samples_stored = c.samples_stored;
+    status.rejected_malformed = c.rejected_malformed;
+    status.rejected_nonfinite = c.rejected_nonfinite;
+    status.rejected_out_of_order = c.rejected_out_of_order;
+    status.rejected_unknown_actuator = c.rejected_unknown_actuator;
+    status.dropped_queue_full = c.dropped_queue_full;
+    status.predictions_published = c.predictions_published;
+    status.alerts_raised = c.alerts_raised;
+    status.writer_queue_depth = static_cast<int32_t>(writer->queue_depth());
+    int32_t recording = 0;
+    for (const auto& [id, state] : actuators) recording += state.trial_id != 0;
+    status.trials_recording = recording;
+    status.identification_running = identifying ? 1 : 0;
+    lcm.publish(config.channel_prefix + "/STATUS", &status);
+    if (!writer->last_error().empty())
+      spdlog::error("sample writer [error: {}]", writer->last_error());
+  }
+
+  Counters Snapshot() const {
+    Counters c = counters;
+    c.samples_stored = writer->stored();
+    return c;
+  }
+
+  void HandleSignals() {
+    signalfd_siginfo info;
+    while (read(signal_fd, &info, sizeof info) == static_cast<ssize_t>(sizeof info)) {
+      if (info.ssi_signo == SIGHUP) {
+        Reload();
+      } else {
+        spdlog::info("stopping [signal: {}]", info.ssi_signo);
+        stop = true;
+      }
+    }
+  }
+
+  void Reload() {
+    spdlog::info("SIGHUP: reopening the log and reloading the configuration");
+    if (!config_path.empty()) {
+      try {
+        Config next = LoadConfigFile(config_path);
+        Validate(next);
+        // What can change while running: alert thresholds, trial rules, log settings.
+        config.alerts = next.alerts;
+        config.auto_trials = next.auto_trials;
+        config.trial_idle_stop_s = next.trial_idle_stop_s;
+        config.log_level = next.log_level;
+        config.log_file = next.log_file;
+        for (auto& [id, state] : actuators)
+          state.monitor = std::make_unique<ResidualMonitor>(id, config.alerts);
+      } catch (const std::exception& e) {
+        spdlog::error("reload refused, keeping the running configuration [error: {}]", e.what());
+      }
+    }
+    SetUpLogging(config);
+    for (const std::string& line : Describe(config)) spdlog::info("config {}", line);
+  }
+
+  void RunOnce(int timeout_ms) {
+    pollfd fds[3] = {{lcm.getFileno(), POLLIN, 0}, {signal_fd, POLLIN, 0}, {wake_fd, POLLIN, 0}};
+    const auto now = std::chrono::steady_clock::now();
+    const int until_status = static_cast<int>(std::max<int64_t>(
+        0, std::chrono::duration_cast<std::chrono::milliseconds>(next_status - now).count()));
+    const int ready = poll(fds, 3, std::min(timeout_ms, until_status));
+    if (ready > 0) {
+      // Drain what LCM has, bounded so that signals and the timer are served.
+      if (fds[0].revents & POLLIN)
+        for (int i = 0; i < 10000 && lcm.handleTimeout(0) > 0; ++i) {
+        }
+      if (fds[1].revents & POLLIN) HandleSignals();
+      if (fds[2].revents & POLLIN) DrainFinished();
+    }
+    if (std::chrono::steady_clock::now() >= next_status) {
+      PublishStatus();
+      next_status += std::chrono::seconds(1);
+      if (next_status < std::chrono::steady_clock::now())
+        next_status = std::chrono::steady_clock::now() + std::chrono::seconds(1);
+    }
+  }
+
+  void Shutdown() {
+    if (!writer->Flush())
+      spdlog::error("samples left unwritten at shutdown [error: {}]", writer->last_error());
+    for (auto& [id, state] : actuators)
+      if (state.trial_id != 0)
+        StopTrial(&state, state.last_sample_utime != kNoTime ? state.last_sample_utime : 0,
+                  storage::TrialState::kInterrupted);
+    const Counters c = Snapshot();
+    spdlog::info("stopped [received: {}, accepted: {}, stored: {}, dropped: {}]",
+                 c.messages_received, c.samples_accepted, c.samples_stored, c.dropped_queue_full);
+  }
+
+  nlohmann::json ModelSummary(const storage::ModelRecord& m) const {
+    nlohmann::json fit = m.fit_json.empty() ? nlohmann::json(nullptr)
+                                            : nlohmann::json::parse(m.fit_json, nullptr, false);
+    return {{"actuator", m.actuator_id},
+            {"version", m.version},
+            {"created_utime", m.created_utime},
+            {"active", m.active},
+            {"trials", m.trial_ids},
+            {"samples_hash", m.samples_hash},
+            {"flexid_version", m.flexid_version},
+            {"fit", fit}};
+  }
+};
+
+namespace {
+
+nlohmann::json TrialJson(const storage::Trial& t) {
+  return {{"id", t.id},
+          {"actuator", t.actuator_id},
+          {"protocol", t.protocol},
+          {"start_utime", t.start_utime},
+          {"end_utime", t.end_utime},
+          {"state", storage::TrialStateName(t.state)},
+          {"samples", t.samples}};
+}
+
+nlohmann::json AlertJson(const storage::AlertRecord& a) {
+  return {{"id", a.id},
+          {"actuator", a.actuator_id},
+          {"kind", a.kind},
+          {"severity", a.severity},
+          {"utime", a.utime},
+          {"start_utime", a.start_utime},
+          {"end_utime", a.end_utime},
+          {"magnitude_mm", a.magnitude_mm},
+          {"threshold_mm", a.threshold_mm},
+          {"text", a.text}};
+}
+
+nlohmann::json FitFiguresJson(const model::FitFigures& fit) {
+  return {{"samples", fit.samples},
+          {"fit_percent", std::isfinite(fit.fit_percent) ? nlohmann::json(fit.fit_percent)
+                                                         : nlohmann::json(nullptr)},
+          {"rmse_mm", fit.rmse_mm},
+          {"whiteness_passed", fit.whiteness.passed},
+          {"input_residual_correlation_passed", fit.cross_correlation.passed}};
+}
+
+// Identification of one actuator on stored trials, on the worker thread with its own
+// connection: samples -> recordings -> T-S model -> a new active model version.
+IdentifyResult RunIdentification(const std::string& database, const std::string& actuator_id,
+                                 std::vector<int64_t> trial_ids, const IdentificationConfig& config,
+                                 RpcContext request) {
+  IdentifyResult result{std::move(request), actuator_id, std::nullopt, ""};
+  try {
+    storage::Database db = storage::Database::Open(database);
+    std::vector<model::Recording> recordings;
+    std::vector<storage::Sample> all;
+    for (int64_t id : trial_ids) {
+      const std::vector<storage::Sample> samples = db.Samples(id);
+      if (samples.size() < 100)
+        throw std::runtime_error("trial " + std::to_string(id) + " has only " +
+                                 std::to_string(samples.size()) + " samples");
+      model::Recording rec;
+      rec.source = "trial " + std::to_string(id);
+      for (const storage::Sample& s : samples) {
+        rec.t_s.push_back(1e-6 * static_cast<double>(s.utime - samples.front().utime));
+        rec.voltage_V.push_back(s.voltage_V);
+        rec.deflection_mm.push_back(s.deflection_mm);
+      }
+      all.insert(all.end(), samples.begin(), samples.end());
+      recordings.push_back(std::move(rec));
+    }
+    model::TsIdentifyOptions options;
+    options.local.num_zeros = config.zeros;
+    options.local.num_poles = config.poles;
+    options.local.max_delay_s = config.max_delay_s;
+    const model::TsEstimate estimate = model::IdentifyTsModel(recordings, options);
+    model::ModelDocument doc = estimate.local.size() == 1
+                                   ? model::FromTransferFunction(estimate.local[0].estimate.tf)
+                                   : model::FromTsModel(estimate.model);
+    doc.extra["fit"] = FitFiguresJson(estimate.fit);
+    doc.extra["identified_from_trials"] = trial_ids;
+    storage::ModelRecord record;
+    record.actuator_id = actuator_id;
+    record.created_utime = WallClockUtime();
+    record.model_json = model::ModelToJson(doc).dump();
+    nlohmann::json fit = FitFiguresJson(estimate.fit);
+    fit["levels_V"] = nlohmann::json::array();
+    for (const auto& local : estimate.local) fit["levels_V"].push_back(local.level_V);
+    record.fit_json = fit.dump();
+    record.trial_ids = trial_ids;
+    record.samples_hash = storage::HashSamples(all);
+    record.flexid_version = kVersion;
+    record.active = true;
+    result.model = db.StoreModel(record);
+  } catch (const std::exception& e) {
+    result.error = e.what();
+  }
+  return result;
+}
+
+}  // namespace
+
+RpcOutcome Daemon::Impl::HandleRequest(const flexid::rpc_request_t& request) {
+  using Reply = flexid::rpc_reply_t;
+  if (!IsValidClientId(request.client_id) || request.request_id.empty() ||
+      request.request_id.size() > 128)
+    return {Reply::kBadRequest, nullptr,
+            "client_id must be [A-Za-z0-9_-]{1,64} and request_id 1-128 characters", false};
+  try {
+    const nlohmann::json args = ParseArguments(request.args_json);
+    const std::string& method = request.method;
+    auto actuator_of = [&](bool required) -> ActuatorState* {
+      const std::string empty;
+      const std::string id = StringArgument(args, "actuator", required ? nullptr : &empty);
+      if (id.empty()) return nullptr;
+      auto it = actuators.find(id);
+      if (it == actuators.end()) throw ArgumentError("unknown actuator \"" + id + "\"");
+      return &it->second;
+    };
+    if (method == "status") {
+      const Counters c = Snapshot();
+      return {Reply::kOk,
+              {{"daemon_id", config.daemon_id},
+               {"version", kVersion},
+               {"database", config.database},
+               {"messages_received", c.messages_received},
+               {"samples_accepted", c.samples_accepted},
+               {"samples_stored", c.samples_stored},
+               {"rejected_malformed", c.rejected_malformed},
+               {"rejected_nonfinite", c.rejected_nonfinite},
+               {"rejected_out_of_order", c.rejected_out_of_order},
+               {"rejected_unknown_actuator", c.rejected_unknown_actuator},
+               {"dropped_queue_full", c.dropped_queue_full},
+               {"predictions_published", c.predictions_published},
+               {"alerts_raised", c.alerts_raised},
+               {"identification_running", identifying.load()}},
+              "",
+              false};
+    }
+    if (method == "actuators") {
+      nlohmann::json list = nlohmann::json::array();
+      for (const auto& [id, state] : actuators)
+        list.push_back({{"id", id},
+                        {"length_mm", state.info.length_mm},
+                        {"width_mm", state.info.width_mm},
+                        {"thickness_mm", state.info.thickness_mm},
+                        {"material", state.info.material},
+                        {"electrolyte", state.info.electrolyte},
+                        {"concentration_M", state.info.concentration_M},
+                        {"model_version", state.predictor.version},
+                        {"trial", state.trial_id},
+                        {"voltage_V", state.voltage_V}});
+      return {Reply::kOk, list, "", false};
+    }
+    if (method == "trials") {
+      const ActuatorState* state = actuator_of(false);
+      std::optional<std::string> filter;
+      if (state) filter = state->info.id;
+      nlohmann::json list = nlohmann::json::array();
+      for (const storage::Trial& t :
+           db.Trials(filter, static_cast<int>(IntegerArgument(args, "limit", 100, 1, 10000))))
+        list.push_back(TrialJson(t));
+      return {Reply::kOk, list, "", false};
+    }
+    if (method == "trial_samples") {
+      const int64_t id = IntegerArgument(args, "trial", 0, 1, INT64_MAX);
+      const auto trial = db.FindTrial(id);
+      if (!trial) return {Reply::kNotFound, nullptr, "no trial " + std::to_string(id), false};
+      const int64_t offset = IntegerArgument(args, "offset", 0, 0, INT64_MAX);
+      const int64_t limit = IntegerArgument(args, "limit", 5000, 1, 20000);
+      const std::vector<storage::Sample> samples = db.Samples(id);
+      nlohmann::json utime = nlohmann::json::array(), volts = nlohmann::json::array(),
+                     mm = nlohmann::json::array();
+      for (int64_t k = offset;
+           k < std::min<int64_t>(offset + limit, static_cast<int64_t>(samples.size())); ++k) {
+        utime.push_back(samples[static_cast<size_t>(k)].utime);
+        volts.push_back(samples[static_cast<size_t>(k)].voltage_V);
+        mm.push_back(samples[static_cast<size_t>(k)].deflection_mm);
+      }
+      return {Reply::kOk,
+              {{"trial", TrialJson(*trial)},
+               {"offset", offset},
+               {"total", samples.size()},
+               {"utime", utime},
+               {"voltage_V", volts},
+               {"deflection_mm", mm}},
+              "",
+              false};
+    }
+    if (method == "models") {
+      ActuatorState* state = actuator_of(true);
+      nlohmann::json list = nlohmann::json::array();
+      for (const storage::ModelRecord& m : db.Models(state->info.id))
+        list.push_back(ModelSummary(m));
+      return {Reply::kOk, list, "", false};
+    }
+    if (method == "model") {
+      ActuatorState* state = actuator_of(true);
+      const auto version = static_cast<int32_t>(IntegerArgument(args, "version", 0, 0, INT32_MAX));
+      const auto m =
+          version == 0 ? db.ActiveModel(state->info.id) : db.FindModel(state->info.id, version);
+      if (!m) return {Reply::kNotFound, nullptr, "no such model of " + state->info.id, false};
+      nlohmann::json out = ModelSummary(*m);
+      out["model"] = nlohmann::json::parse(m->model_json);
+      return {Reply::kOk, out, "", false};
+    }
+    if (method == "model_activate") {
+      ActuatorState* state = actuator_of(true);
+      const auto version = static_cast<int32_t>(IntegerArgument(args, "version", 0, 1, INT32_MAX));
+      if (!db.FindModel(state->info.id, version))
+        return {Reply::kNotFound, nullptr, "no such model version", false};
+      db.ActivateModel(state->info.id, version);
+      LoadModel(state, *db.FindModel(state->info.id, version));
+      return {Reply::kOk, {{"actuator", state->info.id}, {"version", version}}, "", false};
+    }
+    if (method == "alerts") {
+      const ActuatorState* state = actuator_of(false);
+      std::optional<std::string> filter;
+      if (state) filter = state->info.id;
+      nlohmann::json list = nlohmann::json::array();
+      for (const storage::AlertRecord& a :
+           db.Alerts(filter, IntegerArgument(args, "since_utime", 0, 0, INT64_MAX),
+                     static_cast<int>(IntegerArgument(args, "limit", 100, 1, 10000))))
+        list.push_back(AlertJson(a));
+      return {Reply::kOk, list, "", false};
+    }
+    if (method == "trial_start" || method == "trial_stop") {
+      ActuatorState* state = actuator_of(true);
+      const int64_t now = state->voltage_utime != kNoTime ? state->voltage_utime : WallClockUtime();
+      if (method == "trial_start") {
+        const std::string fallback = "manual";
+        if (state->trial_id != 0) StopTrial(state, now, storage::TrialState::kComplete);
+        StartTrial(state, StringArgument(args, "protocol", &fallback), now, false);
+        return {Reply::kOk, {{"actuator", state->info.id}, {"trial", state->trial_id}}, "", false};
+      }
+      if (state->trial_id == 0)
+        return {Reply::kNotFound, nullptr, state->info.id + " has no trial recording", false};
+      const int64_t id = state->trial_id;
+      if (!writer->Flush())
+        spdlog::error("trial stop: samples not yet committed [error: {}]", writer->last_error());
+      StopTrial(state, now, storage::TrialState::kComplete);
+      return {Reply::kOk, {{"actuator", state->info.id}, {"trial", id}}, "", false};
+    }
+    if (method == "identify") {
+      ActuatorState* state = actuator_of(true);
+      std::vector<int64_t> trials;
+      if (const auto it = args.find("trials"); it != args.end()) {
+        if (!it->is_array() || it->empty() || it->size() > 100)
+          throw ArgumentError("argument \"trials\" must be a list of 1-100 trial ids");
+        for (const auto& id : *it) {
+          if (!id.is_number_integer())
+            throw ArgumentError("argument \"trials\" must hold integers");
+          const auto trial = db.FindTrial(id.get<int64_t>());
+          if (!trial || trial->actuator_id != state->info.id)
+            return {Reply::kNotFound, nullptr,
+                    "no trial " + std::to_string(id.get<int64_t>()) + " of " + state->info.id,
+                    false};
+          trials.push_back(trial->id);
+        }
+      } else {
+        const auto latest =
+            IntegerArgument(args, "latest", config.identification.latest_trials, 1, 100);
+        for (const storage::Trial& t : db.Trials(state->info.id, 1000)) {
+          if (t.state == storage::TrialState::kRecording || t.samples < 100) continue;
+          trials.push_back(t.id);
+          if (static_cast<int64_t>(trials.size()) == latest) break;
+        }
+        if (trials.empty())
+          return {Reply::kNotFound, nullptr,
+                  state->info.id + " has no finished trial to identify from", false};
+      }
+      if (!writer->Flush())
+        return {Reply::kFailed, nullptr, "cannot commit samples: " + writer->last_error(), false};
+      const std::string database = config.database, id = state->info.id;
+      const IdentificationConfig options = config.identification;
+      const RpcContext context{request.request_id, request.client_id};
+      if (!Submit([database, id, trials, options, context] {
+            return RunIdentification(database, id, trials, options, context);
+          }))
+        return {Reply::kBusy, nullptr,
+                "an identification is already running; try again when it ends", false};
+      spdlog::info("identification started [actuator: {}, trials: {}]", id,
+                   nlohmann::json(trials).dump());
+      return {Reply::kOk, nullptr, "", true};
+    }
+    return {Reply::kBadRequest, nullptr, "unknown method \"" + method + "\"", false};
+  } catch (const ArgumentError& e) {
+    return {Reply::kBadRequest, nullptr, e.what(), false};
+  } catch (const std::exception& e) {
+    return {Reply::kFailed, nullptr, e.what(), false};
+  }
+}
+
+Daemon::Daemon(Config config, std::string config_path)
+    : impl_(std::make_unique<Impl>(std::move(config), std::move(config_path))) {
+  for (const std::string& line : Describe(impl_->config)) spdlog::info("config {}", line);
+}
+
+Daemon::~Daemon() = default;
+
+int Daemon::Run() {
+  spdlog::info("flexidd {} running [daemon_id: {}]", kVersion, impl_->config.daemon_id);
+  while (!impl_->stop) impl_->RunOnce(1000);
+  impl_->Shutdown();
+  return 0;
+}
+
+void Daemon::RunOnce(int timeout_ms) { impl_->RunOnce(timeout_ms); }
+void Daemon::Stop() { impl_->stop = true; }
+Counters Daemon::counters() const { return impl_->Snapshot(); }
+
+void SetUpLogging(const Config& config) {
+  std::vector<spdlog::sink_ptr> sinks = {std::make_shared<spdlog::sinks::stderr_color_sink_mt>()};
+  if (!config.log_file.empty()) {
+    std::error_code ignored;
+    const auto parent = std::filesystem::path(config.log_file).parent_path();
+    if (!parent.empty()) std::filesystem::create_directories(parent, ignored);
+    try {
+      sinks.push_back(
+          std::make_shared<spdlog::sinks::rotating_file_sink_mt>(config.log_file, 5 << 20, 3));
+    } catch (const spdlog::spdlog_ex& e) {
+      std::fprintf(stderr, "flexidd: cannot open log file %s: %s\n", config.log_file.c_str(),
+                   e.what());
+    }
+  }
+  auto logger = std::make_shared<spdlog::logger>("flexidd", sinks.begin(), sinks.end());
+  logger->set_level(spdlog::level::from_str(config.log_level));
+  logger->flush_on(spdlog::level::warn);
+  spdlog::set_default_logger(logger);
+}
+
+}  // namespace flexid::daemon

@@ -1,0 +1,68 @@
+// flexidd: the lab service. One event loop owns LCM's file descriptor, a signal
+// descriptor, a wake-up descriptor for the workers and a 1 s timer; handlers never block
+// on disk or on identification:
+//
+//   FLEXID/<id>/VOLTAGE, /DEFLECTION --> validate, count --> pair each deflection sample
+//        with the voltage in force --> SampleWriter (bounded queue, own thread, commits at
+//        least every commit_interval) --> SQLite
+//                                     --> T-S prediction (StreamingSimulator, message time)
+//                                          --> FLEXID/<id>/PREDICTION
+//                                          --> ResidualMonitor --> FLEXID/ALERT (+ SQLite)
+//   FLEXID/RPC/REQUEST --> methods (rpc.h); "identify" runs on the identification worker,
+//        stores a new model version, hot-swaps the predictor and then replies.
+//   FLEXID/STATUS <-- counters, once a second.
+//
+// The daemon works in message time (utime), never wall-clock time, so an accelerated rig
+// or a replayed log behaves like a real-time run. Trial starts, stops and alerts are rare
+// and written on the loop's own connection (a few hundred microseconds in WAL mode).
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include "daemon/config.h"
+
+namespace flexid::daemon {
+
+struct Counters {
+  int64_t messages_received = 0;
+  int64_t samples_accepted = 0;
+  int64_t rejected_malformed = 0;
+  int64_t rejected_nonfinite = 0;
+  int64_t rejected_out_of_order = 0;
+  int64_t rejected_unknown_actuator = 0;
+  int64_t dropped_queue_full = 0;
+  int64_t predictions_published = 0;
+  int64_t alerts_raised = 0;
+  int64_t samples_stored = 0;  // acknowledged: committed
+};
+
+class Daemon {
+ public:
+  // Opens the database (marking trials left 'recording' by a crash as interrupted), loads
+  // the active models, joins the bus. Throws ConfigError, storage::StorageError or
+  // std::runtime_error (the bus) with one line saying what failed.
+  explicit Daemon(Config config, std::string config_path = "");
+  ~Daemon();
+  Daemon(const Daemon&) = delete;
+  Daemon& operator=(const Daemon&) = delete;
+
+  // Runs until Stop(), SIGTERM or SIGINT (SIGHUP reloads the configuration file and
+  // reopens the log). Flushes every queued sample before returning. Returns 0.
+  int Run();
+  // One pass of the loop: handles whatever is ready within timeout_ms.
+  void RunOnce(int timeout_ms);
+  void Stop();
+
+  Counters counters() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+// Sets up spdlog (console + rotating file) once per process; safe to call again (SIGHUP).
+void SetUpLogging(const Config& config);
+
+}  // namespace flexid::daemon

@@ -1,0 +1,54 @@
+// flexidd [--config FILE] [--db PATH] [--lcm URL]: the flexid lab service. Flags override
+// the file; with no file it runs on the embedded defaults (DESIGN.md).
+#include <spdlog/spdlog.h>
+
+#include <CLI/CLI.hpp>
+
+#include "daemon/daemon.h"
+#include "flexid/version.h"
+#include "storage/database.h"
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "flexidd: records actuator trials from the bus, predicts live, raises alerts, identifies on "
+      "demand"};
+  app.set_version_flag("--version", flexid::kVersion);
+  std::string config_path, db, lcm_url, log_file, daemon_id;
+  app.add_option("--config", config_path,
+                 "TOML configuration file (deploy/flexidd.toml is an example)");
+  app.add_option("--db", db, "SQLite database file (default var/flexid.db)");
+  app.add_option("--lcm", lcm_url, "LCM URL (default udpm://239.255.76.67:7667?ttl=0)");
+  app.add_option("--log-file", log_file, "Rotating log file (default var/flexidd.log)");
+  app.add_option("--daemon-id", daemon_id, "Name of this instance on the bus");
+  app.footer(
+      "Example:\n  flexidd --config /etc/flexid/flexidd.toml\n  flexidd --db var/flexid.db --lcm "
+      "'udpm://239.255.76.67:7667?ttl=0'");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::Success& e) {
+    return app.exit(e);
+  } catch (const CLI::ParseError& e) {
+    app.exit(e);
+    return 2;
+  }
+  flexid::daemon::Config config;
+  try {
+    if (!config_path.empty()) config = flexid::daemon::LoadConfigFile(config_path);
+    if (!db.empty()) config.database = db;
+    if (!lcm_url.empty()) config.lcm_url = lcm_url;
+    if (!log_file.empty()) config.log_file = log_file;
+    if (!daemon_id.empty()) config.daemon_id = daemon_id;
+    flexid::daemon::Validate(config);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "flexidd: %s\n", e.what());
+    return 2;
+  }
+  flexid::daemon::SetUpLogging(config);
+  try {
+    flexid::daemon::Daemon daemon(config, config_path);
+    return daemon.Run();
+  } catch (const std::exception& e) {
+    spdlog::critical("cannot run [error: {}]", e.what());
+    return 1;
+  }
+}

@@ -1,0 +1,46 @@
+#include "daemon/rpc.h"
+
+#include <regex>
+
+namespace flexid::daemon {
+
+bool IsValidClientId(const std::string& client_id) {
+  static const std::regex pattern("[A-Za-z0-9_-]{1,64}");
+  return std::regex_match(client_id, pattern);
+}
+
+nlohmann::json ParseArguments(const std::string& args_json) {
+  if (args_json.empty()) return nlohmann::json::object();
+  nlohmann::json args = nlohmann::json::parse(args_json, nullptr, /*allow_exceptions=*/false);
+  if (args.is_discarded()) throw ArgumentError("args_json is not valid JSON");
+  if (!args.is_object()) throw ArgumentError("args_json must be a JSON object");
+  return args;
+}
+
+std::string StringArgument(const nlohmann::json& args, const char* name,
+                           const std::string* fallback) {
+  const auto it = args.find(name);
+  if (it == args.end()) {
+    if (fallback) return *fallback;
+    throw ArgumentError(std::string("missing argument \"") + name + "\"");
+  }
+  if (!it->is_string() || it->get<std::string>().size() > 4096)
+    throw ArgumentError(std::string("argument \"") + name +
+                        "\" must be a string (at most 4096 characters)");
+  return it->get<std::string>();
+}
+
+int64_t IntegerArgument(const nlohmann::json& args, const char* name, int64_t fallback, int64_t min,
+                        int64_t max) {
+  const auto it = args.find(name);
+  if (it == args.end()) return fallback;
+  if (!it->is_number_integer())
+    throw ArgumentError(std::string("argument \"") + name + "\" must be an integer");
+  const int64_t value = it->get<int64_t>();
+  if (value < min || value > max)
+    throw ArgumentError(std::string("argument \"") + name + "\" must be in [" +
+                        std::to_string(min) + ", " + std::to_string(max) + "]");
+  return value;
+}
+
+}  // namespace flexid::daemon

@@ -1,0 +1,39 @@
+// RPC over the bus (DESIGN.md): a request on FLEXID/RPC/REQUEST names its method and
+// carries JSON arguments; the reply goes to FLEXID/RPC/REPLY/<client_id> with the request
+// id, a status and a JSON result. Read-only methods: status, actuators, trials,
+// trial_samples, models, model, alerts. Methods that change data: identify, trial_start,
+// trial_stop, model_activate.
+#pragma once
+
+#include <cstdint>
+#include <nlohmann/json.hpp>
+#include <string>
+
+namespace flexid::daemon {
+
+struct RpcContext {
+  std::string request_id;
+  std::string client_id;
+};
+
+struct RpcOutcome {
+  int8_t status = 0;  // rpc_reply_t::kOk, ...
+  nlohmann::json result;
+  std::string error;      // one line when status != kOk
+  bool deferred = false;  // the reply comes later (identify)
+};
+
+// [A-Za-z0-9_-]{1,64}: client ids name reply channels.
+bool IsValidClientId(const std::string& client_id);
+
+// Typed access to a request's JSON arguments; throws ArgumentError naming the argument.
+struct ArgumentError : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+nlohmann::json ParseArguments(const std::string& args_json);
+std::string StringArgument(const nlohmann::json& args, const char* name,
+                           const std::string* fallback = nullptr);
+int64_t IntegerArgument(const nlohmann::json& args, const char* name, int64_t fallback, int64_t min,
+                        int64_t max);
+
+}  // namespace flexid::daemon

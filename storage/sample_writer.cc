@@ -1,0 +1,156 @@
+#include "storage/sample_writer.h"
+
+#include <algorithm>
+#include <exception>
+#include <stdexcept>
+#include <utility>
+
+namespace flexid::storage {
+namespace {
+
+// Commit attempts the destructor makes, one per interval, after a failed final commit.
+constexpr int kRetriesAtShutdown = 10;
+
+}  // namespace
+
+bool SampleWriterOptions::IsValid(std::string* error) const {
+  std::string problem;
+  if (commit_interval <= std::chrono::milliseconds::zero())
+    problem = "commit_interval must be positive";
+  else if (queue_capacity == 0)
+    problem = "queue_capacity must be positive";
+  if (error) *error = problem;
+  return problem.empty();
+}
+
+namespace {
+
+SampleWriterOptions Validated(SampleWriterOptions options) {
+  std::string error;
+  if (!options.IsValid(&error)) throw std::invalid_argument("SampleWriterOptions: " + error);
+  return options;
+}
+
+}  // namespace
+
+SampleWriter::SampleWriter(const std::string& db_path, SampleWriterOptions options)
+    : options_(Validated(options)), database_(Database::Open(db_path)) {
+  // Both buffers can hold a full queue, so neither Enqueue nor the writer allocates (and
+  // holds the lock meanwhile) in steady state. Untouched capacity costs no memory.
+  incoming_.reserve(options_.queue_capacity);
+  batch_.reserve(options_.queue_capacity);
+  thread_ = std::thread([this] { Run(); });
+}
+
+SampleWriter::~SampleWriter() {
+  {
+    std::lock_guard lock(mutex_);
+    stop_ = true;
+  }
+  wake_.notify_one();
+  try {
+    if (thread_.joinable()) thread_.join();
+  } catch (...) {  // std::system_error: nothing sensible is left to do
+  }
+}
+
+bool SampleWriter::Enqueue(int64_t trial_id, const Sample& sample) {
+  std::lock_guard lock(mutex_);
+  if (incoming_.size() + batch_.size() >= options_.queue_capacity) return false;
+  incoming_.push_back({trial_id, sample});
+  enqueued_.fetch_add(1);
+  return true;
+}
+
+bool SampleWriter::Flush() {
+  std::unique_lock lock(mutex_);
+  const int64_t target = enqueued_.load();
+  auto done = [&] { return stored_.load() + rejected_.load() >= target; };
+  if (done()) return true;
+  const uint64_t attempts_before = attempts_;
+  flush_requested_ = true;
+  wake_.notify_one();
+  flushed_.wait(lock, [&] {
+    return done() || exited_ || (attempts_ > attempts_before && last_attempt_failed_);
+  });
+  return done();
+}
+
+size_t SampleWriter::queue_depth() const {
+  std::lock_guard lock(mutex_);
+  return incoming_.size() + batch_.size();
+}
+
+std::string SampleWriter::last_error() const {
+  std::lock_guard lock(mutex_);
+  return last_error_;
+}
+
+void SampleWriter::Run() noexcept {
+  const auto interval = options_.commit_interval;
+  std::unique_lock lock(mutex_);
+  auto deadline = std::chrono::steady_clock::now() + interval;
+  int failures_while_stopping = 0;
+  while (true) {
+    if (!stop_) wake_.wait_until(lock, deadline, [this] { return stop_ || flush_requested_; });
+    const bool stopping = stop_;
+    flush_requested_ = false;
+    // Take what has queued. After a failed commit batch_ still holds its samples: the new
+    // ones go behind them, keeping the order (both fit: see the constructor).
+    if (batch_.empty()) {
+      batch_.swap(incoming_);
+    } else {
+      batch_.insert(batch_.end(), incoming_.begin(), incoming_.end());
+      incoming_.clear();
+    }
+    if (batch_.empty()) {
+      if (stopping) break;
+      deadline = std::max(deadline + interval, std::chrono::steady_clock::now());
+      continue;
+    }
+
+    // Commit without the lock: Enqueue goes on filling incoming_ meanwhile. batch_ is not
+    // modified by anyone while the lock is released.
+    lock.unlock();
+    AppendResult result;
+    std::string error;
+    try {
+      result = database_.AppendSamples(std::span<const TrialSample>(batch_));
+    } catch (const std::exception& e) {
+      error = e.what();
+    } catch (...) {
+      error = "unknown error";
+    }
+    lock.lock();
+
+    ++attempts_;
+    last_attempt_failed_ = !error.empty();
+    if (error.empty()) {
+      stored_.fetch_add(result.inserted);
+      rejected_.fetch_add(result.duplicates + result.invalid);
+      batch_.clear();
+      last_error_.clear();
+    } else {
+      last_error_ = error + " (" + std::to_string(batch_.size() + incoming_.size()) +
+                    " samples kept queued; retrying every " + std::to_string(interval.count()) +
+                    " ms)";
+    }
+    flushed_.notify_all();
+    deadline = std::max(deadline + interval, std::chrono::steady_clock::now());
+
+    if (stopping && !error.empty()) {
+      if (++failures_while_stopping > kRetriesAtShutdown) {
+        last_error_ = error + " (gave up at shutdown; " + std::to_string(batch_.size()) +
+                      " samples not stored)";
+        break;
+      }
+      lock.unlock();
+      std::this_thread::sleep_for(interval);
+      lock.lock();
+    }
+  }
+  exited_ = true;
+  flushed_.notify_all();
+}
+
+}  // namespace flexid::storage

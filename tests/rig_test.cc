@@ -1,0 +1,744 @@
+// Tests of flexid-rig: protocols, effects, the sample stream, the runner, and the real
+// binary publishing on a real LCM bus (UDP multicast, ttl=0, random port).
+#include "clients/rig/rig.h"
+
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <flexid/deflection_sample_t.hpp>
+#include <flexid/trial_control_t.hpp>
+#include <flexid/voltage_sample_t.hpp>
+#include <lcm/lcm-cpp.hpp>
+#include <memory>
+#include <random>
+#include <regex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "cli_process.h"
+#include "clients/rig/effects.h"
+#include "clients/rig/protocol.h"
+#include "clients/rig/runner.h"
+#include "model/errors.h"
+#include "model/presets.h"
+#include "model/simulate.h"
+#include "scratch_dir.h"
+
+namespace flexid {
+namespace {
+
+using rig::ParseEffect;
+using rig::ParseProtocol;
+using rig::Protocol;
+using rig::ProtocolDuration;
+using rig::VoltageAt;
+
+// The error message of ParseProtocol / ParseEffect, or "" if it succeeds.
+template <typename Parse>
+std::string ErrorOf(Parse parse) {
+  try {
+    parse();
+  } catch (const model::InputError& error) {
+    return error.what();
+  }
+  return "";
+}
+std::string ProtocolError(const std::string& spec) {
+  return ErrorOf([&] { ParseProtocol(spec); });
+}
+std::string EffectError(const std::string& spec) {
+  return ErrorOf([&] { ParseEffect(spec); });
+}
+
+// ---------------------------------------------------------------------------------------
+// Protocols
+// ---------------------------------------------------------------------------------------
+
+TEST(Protocol, StepWithAndWithoutDelay) {
+  Protocol p = ParseProtocol("step:level=2,duration=600");
+  EXPECT_EQ(p.shape, Protocol::Shape::kStep);
+  EXPECT_EQ(p.text, "step:level=2,duration=600");
+  EXPECT_EQ(p.level_V, 2.0);
+  EXPECT_EQ(p.duration_s, 600.0);
+  EXPECT_EQ(p.delay_s, 0.0);  // default
+  EXPECT_EQ(ProtocolDuration(p), 600.0);
+
+  p = ParseProtocol("step:delay=5,level=-1.5,duration=10");  // any key order
+  EXPECT_EQ(p.level_V, -1.5);
+  EXPECT_EQ(p.delay_s, 5.0);
+  EXPECT_EQ(ProtocolDuration(p), 15.0);
+  EXPECT_EQ(ParseProtocol("step:level=2,duration=1,delay=0").delay_s, 0.0);
+}
+
+TEST(Protocol, SquareDefaultsToHalfDuty) {
+  Protocol p = ParseProtocol("square:level=5,period=220,cycles=5");
+  EXPECT_EQ(p.shape, Protocol::Shape::kSquare);
+  EXPECT_EQ(p.level_V, 5.0);
+  EXPECT_EQ(p.period_s, 220.0);
+  EXPECT_EQ(p.duty, 0.5);
+  EXPECT_EQ(p.cycles, 5);
+  EXPECT_EQ(ProtocolDuration(p), 1100.0);
+  EXPECT_EQ(ParseProtocol("square:level=5,period=220,duty=0.25,cycles=5").duty, 0.25);
+}
+
+TEST(Protocol, StaircaseAndHold) {
+  Protocol p = ParseProtocol("staircase:levels=2/4/6/8,dwell=150");
+  EXPECT_EQ(p.shape, Protocol::Shape::kStaircase);
+  EXPECT_EQ(p.levels_V, (std::vector<double>{2, 4, 6, 8}));
+  EXPECT_EQ(p.dwell_s, 150.0);
+  EXPECT_EQ(ProtocolDuration(p), 750.0);  // four levels and the final rest
+  EXPECT_EQ(ParseProtocol("staircase:levels=3,dwell=1").levels_V, std::vector<double>{3});
+
+  p = ParseProtocol("hold:level=8,duration=30");
+  EXPECT_EQ(p.shape, Protocol::Shape::kHold);
+  EXPECT_EQ(p.level_V, 8.0);
+  EXPECT_EQ(ProtocolDuration(p), 30.0);
+}
+
+TEST(Protocol, EveryErrorIsOneClearLine) {
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"", "protocol \"\": empty specification (expected NAME[:KEY=VALUE,...])"},
+      {":level=2", "protocol \":level=2\": empty specification (expected NAME[:KEY=VALUE,...])"},
+      {"ramp:level=2",
+       "protocol \"ramp:level=2\": unknown protocol \"ramp\" (expected step, square, staircase "
+       "or hold)"},
+      {"step", "protocol \"step\": missing key \"level\""},
+      {"step:level=2", "protocol \"step:level=2\": missing key \"duration\""},
+      {"step:level=2,duration=5,speed=3",
+       "protocol \"step:level=2,duration=5,speed=3\": unknown key \"speed\" (step takes level, "
+       "duration and delay)"},
+      {"step:level=2,duration=0",
+       "protocol \"step:level=2,duration=0\": duration must be > 0 s (got 0)"},
+      {"step:level=2,duration=-3",
+       "protocol \"step:level=2,duration=-3\": duration must be > 0 s (got -3)"},
+      {"step:level=2,duration=5,delay=-1",
+       "protocol \"step:level=2,duration=5,delay=-1\": delay must be >= 0 s (got -1)"},
+      {"step:level=abc,duration=5",
+       "protocol \"step:level=abc,duration=5\": level is not a finite number: \"abc\""},
+      {"step:level=inf,duration=5",
+       "protocol \"step:level=inf,duration=5\": level is not a finite number: \"inf\""},
+      {"step:level=2V,duration=5",
+       "protocol \"step:level=2V,duration=5\": level is not a finite number: \"2V\""},
+      {"step:level=2,level=3,duration=5",
+       "protocol \"step:level=2,level=3,duration=5\": key \"level\" given twice"},
+      {"step:level", "protocol \"step:level\": expected KEY=VALUE, got \"level\""},
+      {"step:level=", "protocol \"step:level=\": expected KEY=VALUE, got \"level=\""},
+      {"step:=2", "protocol \"step:=2\": expected KEY=VALUE, got \"=2\""},
+      {"step:", "protocol \"step:\": expected KEY=VALUE, got \"\""},
+      {"step:level=2,,duration=5",
+       "protocol \"step:level=2,,duration=5\": expected KEY=VALUE, got \"\""},
+      {"square:level=5,period=220",
+       "protocol \"square:level=5,period=220\": missing key \"cycles\""},
+      {"square:level=5,cycles=2", "protocol \"square:level=5,cycles=2\": missing key \"period\""},
+      {"square:level=5,period=0,cycles=1",
+       "protocol \"square:level=5,period=0,cycles=1\": period must be > 0 s (got 0)"},
+      {"square:level=5,period=10,duty=1,cycles=1",
+       "protocol \"square:level=5,period=10,duty=1,cycles=1\": duty must be > 0 and < 1 (got 1)"},
+      {"square:level=5,period=10,duty=0,cycles=1",
+       "protocol \"square:level=5,period=10,duty=0,cycles=1\": duty must be > 0 and < 1 (got 0)"},
+      {"square:level=5,period=10,cycles=2.5",
+       "protocol \"square:level=5,period=10,cycles=2.5\": cycles must be a positive whole number "
+       "(got \"2.5\")"},
+      {"square:level=5,period=10,cycles=0",
+       "protocol \"square:level=5,period=10,cycles=0\": cycles must be a positive whole number "
+       "(got \"0\")"},
+      {"square:level=5,period=10,cycles=1,dwell=3",
+       "protocol \"square:level=5,period=10,cycles=1,dwell=3\": unknown key \"dwell\" (square "
+       "takes level, period, duty and cycles)"},
+      {"staircase:dwell=10", "protocol \"staircase:dwell=10\": missing key \"levels\""},
+      {"staircase:levels=2/4", "protocol \"staircase:levels=2/4\": missing key \"dwell\""},
+      {"staircase:levels=2/x/6,dwell=10",
+       "protocol \"staircase:levels=2/x/6,dwell=10\": levels is not a list of finite numbers "
+       "separated by '/': \"2/x/6\""},
+      {"staircase:levels=2//6,dwell=10",
+       "protocol \"staircase:levels=2//6,dwell=10\": levels is not a list of finite numbers "
+       "separated by '/': \"2//6\""},
+      {"staircase:levels=2/4,dwell=-1",
+       "protocol \"staircase:levels=2/4,dwell=-1\": dwell must be > 0 s (got -1)"},
+      {"hold:level=1", "protocol \"hold:level=1\": missing key \"duration\""},
+      {"hold:level=1,duration=2,delay=1",
+       "protocol \"hold:level=1,duration=2,delay=1\": unknown key \"delay\" (hold takes level and "
+       "duration)"},
+      {"hold:level=1,duration=1e308,",
+       "protocol \"hold:level=1,duration=1e308,\": expected "
+       "KEY=VALUE, got \"\""},
+      {"square:level=1,period=1e308,cycles=10",
+       "protocol \"square:level=1,period=1e308,cycles=10\": the protocol is too long"},
+  };
+  for (const auto& [spec, message] : cases) EXPECT_EQ(ProtocolError(spec), message) << spec;
+}
+
+TEST(VoltageAt, SquareWaveFollowsDutyAndPeriodThenRests) {
+  const Protocol p = ParseProtocol("square:level=5,period=10,duty=0.3,cycles=2");
+  EXPECT_EQ(ProtocolDuration(p), 20.0);
+  EXPECT_EQ(VoltageAt(p, 0.0), 5.0);
+  EXPECT_EQ(VoltageAt(p, 2.9), 5.0);
+  EXPECT_EQ(VoltageAt(p, 3.0), 0.0);  // duty * period
+  EXPECT_EQ(VoltageAt(p, 9.99), 0.0);
+  EXPECT_EQ(VoltageAt(p, 10.0), 5.0);  // the second cycle
+  EXPECT_EQ(VoltageAt(p, 12.99), 5.0);
+  EXPECT_EQ(VoltageAt(p, 13.0), 0.0);
+  EXPECT_EQ(VoltageAt(p, 19.99), 0.0);
+  EXPECT_EQ(VoltageAt(p, 20.0), 0.0);  // after the last cycle: no third one
+  EXPECT_EQ(VoltageAt(p, 1000.0), 0.0);
+  EXPECT_EQ(VoltageAt(p, -1.0), 0.0);  // at rest before the start
+  // Fraction of on-time over the protocol, at 1 kHz.
+  int on = 0;
+  for (int k = 0; k < 20000; ++k) on += VoltageAt(p, k / 1000.0) == 5.0 ? 1 : 0;
+  EXPECT_EQ(on, 6000);
+}
+
+TEST(VoltageAt, StaircaseStepsThroughTheLevelsThenRestsOneDwell) {
+  const Protocol p = ParseProtocol("staircase:levels=2/4/6/8,dwell=10");
+  EXPECT_EQ(ProtocolDuration(p), 50.0);
+  const std::vector<std::pair<double, double>> expected = {
+      {0.0, 2},   {9.99, 2}, {10.0, 4},  {19.99, 4}, {20.0, 6}, {30.0, 8},
+      {39.99, 8}, {40.0, 0}, {49.99, 0}, {50.0, 0},  {500.0, 0}};
+  for (const auto& [t_s, voltage_V] : expected) EXPECT_EQ(VoltageAt(p, t_s), voltage_V) << t_s;
+}
+
+TEST(VoltageAt, StepAndHold) {
+  const Protocol step = ParseProtocol("step:level=3,duration=10,delay=2");
+  EXPECT_EQ(VoltageAt(step, 0.0), 0.0);
+  EXPECT_EQ(VoltageAt(step, 1.999), 0.0);
+  EXPECT_EQ(VoltageAt(step, 2.0), 3.0);
+  EXPECT_EQ(VoltageAt(step, 11.99), 3.0);
+  const Protocol hold = ParseProtocol("hold:level=-4,duration=10");
+  EXPECT_EQ(VoltageAt(hold, 0.0), -4.0);
+  EXPECT_EQ(VoltageAt(hold, 9.99), -4.0);
+}
+
+TEST(VoltageAt, ABoundaryMissedByRoundingCountsAsReached) {
+  // 0.7 s at 10 Hz is sample 7, at 7 / 10.0 = 0.7 but 0.1 * 7 = 0.7000000000000001 and
+  // 0.7 - 1e-16 would be before it: both must see the change that falls on 0.7 s.
+  const Protocol p = ParseProtocol("step:level=1,duration=1,delay=0.7");
+  EXPECT_EQ(VoltageAt(p, std::nextafter(0.7, 0.0)), 1.0);
+  EXPECT_EQ(VoltageAt(p, 0.7 - 1e-12), 1.0);
+  EXPECT_EQ(VoltageAt(p, 0.7 - 1e-6), 0.0);
+  // A staircase with a dwell of 0.1 s sampled at 30 Hz: the change at 0.3 s lands on
+  // sample 9 (9 / 30.0), not one sample late.
+  const Protocol stairs = ParseProtocol("staircase:levels=1/2/3/4,dwell=0.1");
+  EXPECT_EQ(VoltageAt(stairs, 9 / 30.0), 4.0);
+  EXPECT_EQ(VoltageAt(stairs, 8 / 30.0), 3.0);
+}
+
+// ---------------------------------------------------------------------------------------
+// Effects
+// ---------------------------------------------------------------------------------------
+
+TEST(Effects, BackRelaxationDefaultsAndParameters) {
+  EXPECT_EQ(ParseEffect("back_relaxation")->Describe(), "back_relaxation:fraction=0.3,tau=60");
+  EXPECT_EQ(ParseEffect("back_relaxation:tau=120.5,fraction=0.25")->Describe(),
+            "back_relaxation:fraction=0.25,tau=120.5");
+  EXPECT_EQ(ParseEffect("back_relaxation:fraction=1")->Describe(),
+            "back_relaxation:fraction=1,tau=60");
+  EXPECT_EQ(rig::EffectNames(), std::vector<std::string>{"back_relaxation"});
+}
+
+TEST(Effects, EveryErrorIsOneClearLine) {
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"", "effect \"\": empty specification (expected NAME[:KEY=VALUE,...])"},
+      {"wobble", "effect \"wobble\": unknown effect \"wobble\" (expected back_relaxation)"},
+      {"back_relaxation:fraction=1.5",
+       "effect \"back_relaxation:fraction=1.5\": fraction must be >= 0 and <= 1 (got 1.5)"},
+      {"back_relaxation:fraction=-0.1",
+       "effect \"back_relaxation:fraction=-0.1\": fraction must be >= 0 and <= 1 (got -0.1)"},
+      {"back_relaxation:tau=0", "effect \"back_relaxation:tau=0\": tau must be > 0 s (got 0)"},
+      {"back_relaxation:tau=x",
+       "effect \"back_relaxation:tau=x\": tau is not a finite number: \"x\""},
+      {"back_relaxation:tau=60,size=2",
+       "effect \"back_relaxation:tau=60,size=2\": unknown key \"size\" (back_relaxation takes "
+       "fraction and tau)"},
+      {"back_relaxation:tau", "effect \"back_relaxation:tau\": expected KEY=VALUE, got \"tau\""},
+  };
+  for (const auto& [spec, message] : cases) EXPECT_EQ(EffectError(spec), message) << spec;
+}
+
+// ---------------------------------------------------------------------------------------
+// The sample stream
+// ---------------------------------------------------------------------------------------
+
+std::vector<rig::RigSample> Drain(rig::Rig& r) {
+  std::vector<rig::RigSample> samples;
+  rig::RigSample sample;
+  while (r.Next(&sample)) samples.push_back(sample);
+  return samples;
+}
+
+std::vector<rig::RigSample> RunStream(const model::TsModel& model, const std::string& protocol,
+                                      std::vector<std::unique_ptr<rig::Effect>> effects = {},
+                                      const rig::RigOptions& options = {}) {
+  rig::Rig r(model, ParseProtocol(protocol), std::move(effects), options);
+  return Drain(r);
+}
+
+std::vector<std::unique_ptr<rig::Effect>> OneEffect(std::unique_ptr<rig::Effect> effect) {
+  std::vector<std::unique_ptr<rig::Effect>> effects;
+  effects.push_back(std::move(effect));
+  return effects;
+}
+
+// A pure gain of 2 mm/V: the model's output follows the voltage without lag, so an
+// effect's own dynamics can be checked against closed forms.
+model::TsModel GainModel() { return model::SingleRule({.num = {2.0}, .den = {1.0}}); }
+
+TEST(Rig, WithoutEffectsTheStreamIsExactlySimulateUniform) {
+  const model::TsModel model = model::SeedTsModel();
+  const Protocol protocol = ParseProtocol("staircase:levels=2/4/6/8,dwell=30");
+  rig::RigOptions options;
+  options.start_utime = 1'700'000'000'000'000;
+  rig::Rig r(model, protocol, {}, options);
+  ASSERT_EQ(r.sample_count(), 1500);
+  EXPECT_EQ(r.duration_s(), 150.0);
+  const std::vector<rig::RigSample> samples = Drain(r);
+  ASSERT_EQ(samples.size(), 1500u);
+
+  std::vector<double> voltage_V(1500);
+  for (size_t k = 0; k < voltage_V.size(); ++k)
+    voltage_V[k] = VoltageAt(protocol, static_cast<double>(k) / 10.0);
+  const std::vector<double> expected_mm = model::SimulateUniform(model, 0.1, voltage_V);
+  for (size_t k = 0; k < samples.size(); ++k) {
+    ASSERT_EQ(samples[k].index, static_cast<int64_t>(k));
+    ASSERT_EQ(samples[k].utime, options.start_utime + static_cast<int64_t>(k) * 100'000);
+    ASSERT_EQ(samples[k].voltage_V, voltage_V[k]) << k;
+    ASSERT_EQ(samples[k].deflection_mm, expected_mm[k]) << k;
+  }
+  EXPECT_GT(samples[1199].deflection_mm, 1.0);  // it moved (8 V for 30 s)
+  EXPECT_EQ(r.UtimeOf(r.sample_count()), options.start_utime + 150'000'000);
+}
+
+TEST(Rig, SampleCountCoversTheProtocol) {
+  const model::TsModel model = GainModel();
+  auto count = [&](const std::string& protocol, double rate_Hz) {
+    rig::RigOptions options;
+    options.rate_Hz = rate_Hz;
+    return rig::Rig(model, ParseProtocol(protocol), {}, options).sample_count();
+  };
+  EXPECT_EQ(count("hold:level=1,duration=10", 10), 100);
+  EXPECT_EQ(count("hold:level=1,duration=1", 3), 3);
+  EXPECT_EQ(count("hold:level=1,duration=0.7", 10), 7);
+  EXPECT_EQ(count("hold:level=1,duration=0.75", 10), 8);
+  EXPECT_EQ(count("hold:level=1,duration=0.05", 10), 1);
+  EXPECT_EQ(count("square:level=5,period=220,cycles=5", 10), 11000);
+}
+
+TEST(Rig, UtimeAdvancesInMessageTimeWithRounding) {
+  rig::RigOptions options;
+  options.rate_Hz = 3.0;
+  options.start_utime = 5;
+  const auto samples = RunStream(GainModel(), "hold:level=1,duration=1", {}, options);
+  ASSERT_EQ(samples.size(), 3u);
+  EXPECT_EQ(samples[0].utime, 5);
+  EXPECT_EQ(samples[1].utime, 5 + 333'333);
+  EXPECT_EQ(samples[2].utime, 5 + 666'667);
+}
+
+TEST(Rig, VoltageIsPublishedOnChangeAndAtLeastOnceASecond) {
+  rig::RigOptions options;
+  options.rate_Hz = 2.0;
+  // Samples at 0, 0.5, ..., 3 s; the voltage changes at 1.25 s, seen at 1.5 s.
+  const auto samples = RunStream(GainModel(), "step:level=1,delay=1.25,duration=2", {}, options);
+  ASSERT_EQ(samples.size(), 7u);
+  std::vector<int64_t> changed, published;
+  for (const auto& s : samples) {
+    if (s.voltage_changed) changed.push_back(s.index);
+    if (s.publish_voltage) published.push_back(s.index);
+  }
+  EXPECT_EQ(changed, (std::vector<int64_t>{0, 3}));
+  // 0 s (first), 1 s (a second since), 1.5 s (change), 2.5 s (a second since the change).
+  EXPECT_EQ(published, (std::vector<int64_t>{0, 2, 3, 5}));
+}
+
+TEST(Rig, RejectsBadOptionsTooManySamplesAndUnstableModels) {
+  const Protocol hold = ParseProtocol("hold:level=1,duration=10");
+  rig::RigOptions options;
+  options.rate_Hz = 0.0;
+  EXPECT_THROW(rig::Rig(GainModel(), hold, {}, options), model::InputError);
+  options = {};
+  options.noise_mm = -1.0;
+  EXPECT_THROW(rig::Rig(GainModel(), hold, {}, options), model::InputError);
+  options = {};
+  options.start_utime = -1;
+  EXPECT_THROW(rig::Rig(GainModel(), hold, {}, options), model::InputError);
+
+  const std::string too_long = ErrorOf([] {
+    rig::Rig(model::TsModel(GainModel()), ParseProtocol("hold:level=1,duration=1e7"), {}, {});
+  });
+  EXPECT_EQ(too_long,
+            "protocol \"hold:level=1,duration=1e7\" at 10 Hz needs 1e+08 samples; at most "
+            "10000000 (lower --rate-hz or shorten the protocol)");
+
+  // A pole at +1/s: exp(t) overflows long before 1000 s.
+  const model::TsModel unstable = model::SingleRule({.num = {1.0}, .den = {1.0, -1.0}});
+  try {
+    rig::Rig(unstable, ParseProtocol("hold:level=1,duration=1000"), {}, {});
+    ADD_FAILURE() << "no error";
+  } catch (const std::runtime_error& error) {
+    EXPECT_NE(std::string(error.what()).find("diverges"), std::string::npos) << error.what();
+  }
+}
+
+// Back-relaxation on a pure gain: y = Y from t = 0, so Eq. (2) gives s_n = Y (1 - a^n)
+// exactly and d_n = Y (1 - fraction (1 - a^n)), a = exp(-h / tau).
+TEST(Rig, BackRelaxationFallsBackWithTimeConstantTau) {
+  const double fraction = 0.3, tau_s = 60.0, h_s = 0.1, y_mm = 3.0;  // 1.5 V * 2 mm/V
+  const auto samples = RunStream(GainModel(), "hold:level=1.5,duration=600",
+                                 OneEffect(ParseEffect("back_relaxation:fraction=0.3,tau=60")));
+  ASSERT_EQ(samples.size(), 6000u);
+  const double a = std::exp(-h_s / tau_s);
+  for (size_t n = 0; n < samples.size(); ++n) {
+    const double expected = y_mm * (1.0 - fraction * (1.0 - std::pow(a, static_cast<double>(n))));
+    ASSERT_NEAR(samples[n].deflection_mm, expected, 1e-12) << n;
+  }
+  EXPECT_EQ(samples[0].deflection_mm, y_mm);  // first the full deflection
+  // The time constant of the fall, from the excess over the final value one tau in:
+  const double final_mm = (1.0 - fraction) * y_mm;
+  const double excess_0 = samples[600].deflection_mm - final_mm;
+  const double excess_1 = samples[601].deflection_mm - final_mm;
+  EXPECT_NEAR(-h_s / std::log(excess_1 / excess_0), tau_s, 1e-6);
+  // ... and at one tau the fall has gone 1 - 1/e of the way.
+  EXPECT_NEAR(samples[600].deflection_mm, y_mm - fraction * y_mm * (1.0 - std::exp(-1.0)), 1e-12);
+}
+
+TEST(Rig, BackRelaxationOvershootsAtRestAndReturnsToZero) {
+  // 1.5 V for 600 s (10 tau), then 0 V for 600 s.
+  const auto samples = RunStream(GainModel(), "square:level=1.5,period=1200,cycles=1",
+                                 OneEffect(ParseEffect("back_relaxation:fraction=0.3,tau=60")));
+  ASSERT_EQ(samples.size(), 12000u);
+  double lowest_mm = 0.0;
+  for (size_t n = 6000; n < samples.size(); ++n)
+    lowest_mm = std::min(lowest_mm, samples[n].deflection_mm);
+  // Just after the voltage drops the slow part (about 0.3 * 3 mm) is left, with the sign
+  // reversed: the gel swings past rest. (The first-order hold takes the drop as a ramp over
+  // one sample, so the overshoot is smaller by about fraction * Y * h / (2 tau).)
+  EXPECT_NEAR(lowest_mm, -0.9, 2.0 * (0.9 * 0.1 / 120.0 + 0.9 * std::exp(-10.0)));
+  EXPECT_LT(lowest_mm, -0.89);
+  EXPECT_NEAR(samples.back().deflection_mm, 0.0, 1e-4);  // 0.9 mm * exp(-10)
+}
+
+TEST(Rig, BackRelaxationSettlesAtItsShareOfTheSeedModel) {
+  const model::TsModel model = model::SeedTsModel();
+  const std::string protocol = "step:level=2,duration=3000";
+  const auto plain = RunStream(model, protocol);
+  const auto relaxed =
+      RunStream(model, protocol, OneEffect(ParseEffect("back_relaxation:fraction=0.3,tau=60")));
+  ASSERT_EQ(plain.size(), relaxed.size());
+  const double model_mm = plain.back().deflection_mm;
+  ASSERT_GT(std::abs(model_mm), 1.0);
+  // After 50 tau and many of the model's own time constants: 1e-9 relative.
+  EXPECT_NEAR(relaxed.back().deflection_mm, 0.7 * model_mm, 1e-9 * std::abs(model_mm));
+  // The voltage stream is untouched.
+  for (size_t k = 0; k < plain.size(); ++k) ASSERT_EQ(plain[k].voltage_V, relaxed[k].voltage_V);
+}
+
+// DriveVoltage: the model sees the effect's voltage, the bus the applied one.
+class HalfVoltage : public rig::Effect {
+ public:
+  std::string Describe() const override { return "half_voltage"; }
+  double DriveVoltage(double, double applied_V) override { return 0.5 * applied_V; }
+};
+
+TEST(Rig, DriveVoltageEffectsChangeWhatTheModelSees) {
+  const model::TsModel model = model::SeedTsModel();
+  const std::string protocol = "square:level=8,period=40,cycles=2";
+  const auto halved = RunStream(model, protocol, OneEffect(std::make_unique<HalfVoltage>()));
+  std::vector<double> drive_V;
+  for (const auto& s : halved) drive_V.push_back(0.5 * s.voltage_V);
+  const auto expected_mm = model::SimulateUniform(model, 0.1, drive_V);
+  ASSERT_EQ(halved.size(), 800u);
+  EXPECT_EQ(halved[0].voltage_V, 8.0);
+  for (size_t k = 0; k < halved.size(); ++k) ASSERT_EQ(halved[k].deflection_mm, expected_mm[k]);
+}
+
+TEST(Rig, SeededNoiseIsReproducibleAndHasTheGivenSigma) {
+  const model::TsModel model = model::SeedTsModel();
+  const std::string protocol = "square:level=5,period=220,cycles=1";
+  rig::RigOptions options;
+  options.noise_mm = 0.05;
+  options.seed = 42;
+  const auto a = RunStream(model, protocol, {}, options);
+  const auto b = RunStream(model, protocol, {}, options);
+  options.seed = 43;
+  const auto c = RunStream(model, protocol, {}, options);
+  const auto clean = RunStream(model, protocol);
+  ASSERT_EQ(a.size(), 2200u);
+  int differing = 0;
+  double sum = 0.0, sum_squares = 0.0;
+  for (size_t k = 0; k < a.size(); ++k) {
+    ASSERT_EQ(a[k].deflection_mm, b[k].deflection_mm) << k;
+    differing += a[k].deflection_mm != c[k].deflection_mm ? 1 : 0;
+    const double noise = a[k].deflection_mm - clean[k].deflection_mm;
+    sum += noise;
+    sum_squares += noise * noise;
+  }
+  EXPECT_EQ(differing, 2200);
+  // 2200 samples: the mean's standard error is 0.05 / sqrt(2200) ~ 0.0011 mm and the
+  // sigma estimate's about 1.5 %; bounds at about 4 standard errors.
+  const double n = static_cast<double>(a.size());
+  const double mean = sum / n;
+  EXPECT_NEAR(mean, 0.0, 0.0045);
+  EXPECT_NEAR(std::sqrt(sum_squares / n - mean * mean), 0.05, 0.05 * 0.06);
+}
+
+// ---------------------------------------------------------------------------------------
+// The runner
+// ---------------------------------------------------------------------------------------
+
+struct Recorded {
+  char kind;  // 'V', 'D', 'S' (trial start), 'E' (trial stop)
+  int64_t utime;
+  double value;
+};
+
+class RecordingSink : public rig::BusSink {
+ public:
+  bool PublishVoltage(int64_t utime, double voltage_V) override {
+    messages.push_back({'V', utime, voltage_V});
+    return true;
+  }
+  bool PublishDeflection(int64_t utime, double deflection_mm) override {
+    messages.push_back({'D', utime, deflection_mm});
+    return !fail_deflections;
+  }
+  bool PublishTrialControl(int64_t utime, rig::TrialAction action,
+                           const std::string& protocol) override {
+    messages.push_back({action == rig::TrialAction::kStart ? 'S' : 'E', utime, 0.0});
+    trial_protocol = protocol;
+    return true;
+  }
+  std::vector<Recorded> messages;
+  std::string trial_protocol;
+  bool fail_deflections = false;
+};
+
+rig::RigOptions StartingAt(int64_t start_utime) {
+  rig::RigOptions options;
+  options.start_utime = start_utime;
+  return options;
+}
+
+TEST(Runner, PublishesInOrderWithTrialControlAroundTheSamples) {
+  const std::string protocol = "step:level=3,duration=2,delay=1.05";
+  rig::Rig r(GainModel(), ParseProtocol(protocol), {}, StartingAt(1'000'000));
+  RecordingSink sink;
+  const rig::RunSummary summary = rig::RunRig(r, sink, {.speed = 0.0, .trial_control = true});
+  EXPECT_EQ(summary.samples, 31);
+  EXPECT_EQ(summary.deflection_messages, 31);
+  // Voltage at 0 s, 1 s (a second since), 1.1 s (the change at 1.05 s) and 2.1 s.
+  EXPECT_EQ(summary.voltage_messages, 4);
+  EXPECT_EQ(summary.trial_messages, 2);
+  EXPECT_EQ(summary.failed_messages, 0);
+  EXPECT_FALSE(summary.interrupted);
+  EXPECT_EQ(summary.duration_s, 3.1);
+  EXPECT_EQ(summary.final_utime, 1'000'000 + 3'000'000);
+  ASSERT_EQ(sink.messages.size(), 31u + 4u + 2u);
+  EXPECT_EQ(sink.trial_protocol, protocol);
+  EXPECT_EQ(sink.messages.front().kind, 'S');
+  EXPECT_EQ(sink.messages.front().utime, 1'000'000);
+  EXPECT_EQ(sink.messages.back().kind, 'E');
+  EXPECT_EQ(sink.messages.back().utime, 1'000'000 + 3'100'000);  // end of the last interval
+  EXPECT_EQ(sink.messages[1].kind, 'V');  // the voltage goes before the first deflection
+  EXPECT_EQ(sink.messages[2].kind, 'D');
+  std::vector<int64_t> voltage_utimes;
+  int64_t previous_deflection_utime = -1;
+  for (const Recorded& m : sink.messages) {
+    if (m.kind == 'V') voltage_utimes.push_back(m.utime);
+    if (m.kind != 'D') continue;
+    EXPECT_GT(m.utime, previous_deflection_utime);
+    previous_deflection_utime = m.utime;
+  }
+  EXPECT_EQ(voltage_utimes, (std::vector<int64_t>{1'000'000, 2'000'000, 2'100'000, 3'100'000}));
+  EXPECT_EQ(rig::SummaryLine(summary).rfind(
+                "published 31 samples (31 deflection, 4 voltage, 2 trial-control messages) "
+                "covering 3.1 s of message time in ",
+                0),
+            0u)
+      << rig::SummaryLine(summary);
+}
+
+TEST(Runner, PacesAgainstTheWallClockAtTheGivenSpeed) {
+  // 20 samples over 2 s of message time at 20 x: the last goes out 1.9 / 20 = 95 ms in.
+  rig::Rig r(GainModel(), ParseProtocol("hold:level=1,duration=2"), {}, StartingAt(0));
+  RecordingSink sink;
+  const rig::RunSummary summary = rig::RunRig(r, sink, {.speed = 20.0});
+  EXPECT_EQ(summary.samples, 20);
+  EXPECT_GE(summary.wall_s, 0.095);
+  EXPECT_LT(summary.wall_s, 5.0);
+  EXPECT_EQ(summary.duration_s, 2.0);  // message time does not depend on the speed
+}
+
+TEST(Runner, StopsWhenAskedAndStillClosesTheTrial) {
+  rig::Rig r(GainModel(), ParseProtocol("hold:level=1,duration=3600"), {}, StartingAt(0));
+  RecordingSink sink;
+  std::atomic<bool> stop{false};
+  std::thread stopper([&stop] {
+    std::this_thread::sleep_for(std::chrono::milliseconds(150));
+    stop = true;
+  });
+  const rig::RunSummary summary =
+      rig::RunRig(r, sink, {.speed = 1.0, .trial_control = true}, &stop);
+  stopper.join();
+  EXPECT_TRUE(summary.interrupted);
+  EXPECT_GE(summary.samples, 1);
+  EXPECT_LE(summary.samples, 10);  // 10 Hz for about 0.15 s (or a slow machine)
+  ASSERT_FALSE(sink.messages.empty());
+  EXPECT_EQ(sink.messages.back().kind, 'E');
+  EXPECT_EQ(sink.messages.back().utime, summary.final_utime + 100'000);
+  EXPECT_NE(rig::SummaryLine(summary).find("(interrupted)"), std::string::npos);
+}
+
+TEST(Runner, CountsMessagesTheBusRefused) {
+  rig::Rig r(GainModel(), ParseProtocol("hold:level=1,duration=1"), {}, StartingAt(0));
+  RecordingSink sink;
+  sink.fail_deflections = true;
+  const rig::RunSummary summary = rig::RunRig(r, sink, {.speed = 0.0});
+  EXPECT_EQ(summary.samples, 10);
+  EXPECT_EQ(summary.deflection_messages, 0);
+  EXPECT_EQ(summary.failed_messages, 10);
+  EXPECT_NE(rig::SummaryLine(summary).find(", 10 failed to send"), std::string::npos);
+}
+
+// ---------------------------------------------------------------------------------------
+// The real binary on a real bus
+// ---------------------------------------------------------------------------------------
+
+const std::string kRig = FLEXID_RIG_BINARY;
+
+struct BusCounter {
+  void OnVoltage(const lcm::ReceiveBuffer*, const std::string&,
+                 const flexid::voltage_sample_t* message) {
+    voltage_utimes.push_back(message->utime);
+    ids_ok = ids_ok && message->actuator_id == "E2E";
+    Touch();
+  }
+  void OnDeflection(const lcm::ReceiveBuffer*, const std::string&,
+                    const flexid::deflection_sample_t* message) {
+    deflection_utimes.push_back(message->utime);
+    ids_ok = ids_ok && message->actuator_id == "E2E";
+    Touch();
+  }
+  void OnTrial(const lcm::ReceiveBuffer*, const std::string&,
+               const flexid::trial_control_t* message) {
+    trial_actions.push_back(message->action);
+    ids_ok = ids_ok && message->actuator_id == "E2E";
+    Touch();
+  }
+  void Touch() { last_message = std::chrono::steady_clock::now(); }
+
+  std::vector<int64_t> voltage_utimes, deflection_utimes;
+  std::vector<int8_t> trial_actions;
+  bool ids_ok = true;
+  std::chrono::steady_clock::time_point last_message = std::chrono::steady_clock::now();
+};
+
+std::string RandomUdpmUrl() {
+  std::random_device device;
+  std::uniform_int_distribution<int> port(20000, 60000);
+  return "udpm://239.255.76.67:" + std::to_string(port(device)) + "?ttl=0";
+}
+
+class RigBinary : public ::testing::Test {
+ protected:
+  testing::ProcessResult Run(const std::string& args) {
+    return testing::RunCommand(kRig + " " + args, scratch_.path());
+  }
+  testing::ScratchDir scratch_;
+};
+
+TEST_F(RigBinary, PublishesWhatItsSummarySaysOverLcm) {
+  const std::string url = RandomUdpmUrl();
+  lcm::LCM lcm(url);
+  if (!lcm.good()) GTEST_SKIP() << "cannot open LCM on " << url << " (no multicast route?)";
+  BusCounter counter;
+  // LCM queues at most 30 messages per subscription by default and drops the rest; the
+  // rig at --speed 0 publishes faster than that is drained.
+  for (lcm::Subscription* subscription :
+       {lcm.subscribe("FLEXID/E2E/VOLTAGE", &BusCounter::OnVoltage, &counter),
+        lcm.subscribe("FLEXID/E2E/DEFLECTION", &BusCounter::OnDeflection, &counter),
+        lcm.subscribe("FLEXID/TRIAL", &BusCounter::OnTrial, &counter)})
+    subscription->setQueueCapacity(100000);
+  lcm.getFileno();  // the receive socket exists before the rig publishes
+
+  testing::ProcessResult result;
+  std::atomic<bool> done{false};
+  std::thread rig([&] {
+    result = Run("--lcm '" + url +
+                 "' --actuator E2E --protocol step:level=3,duration=5,delay=1 --speed 0 "
+                 "--start-utime 1000000 --trial-control --effect back_relaxation --noise-mm 0.01");
+    done = true;
+  });
+  while (!done ||
+         std::chrono::steady_clock::now() - counter.last_message < std::chrono::milliseconds(500))
+    lcm.handleTimeout(50);
+  rig.join();
+
+  ASSERT_EQ(result.exit_code, 0) << result.err;
+  EXPECT_EQ(result.err, "");
+  std::smatch match;
+  const std::regex summary(
+      "^published (\\d+) samples \\((\\d+) deflection, (\\d+) voltage, (\\d+) trial-control "
+      "messages\\) covering 6 s of message time in [0-9.e+-]+ s, final utime 6900000\n$");
+  ASSERT_TRUE(std::regex_match(result.out, match, summary)) << result.out;
+  EXPECT_EQ(match[1].str(), "60");
+  EXPECT_EQ(std::to_string(counter.deflection_utimes.size()), match[2].str());
+  EXPECT_EQ(std::to_string(counter.voltage_utimes.size()), match[3].str());
+  EXPECT_EQ(std::to_string(counter.trial_actions.size()), match[4].str());
+  EXPECT_EQ(counter.voltage_utimes.size(), 6u);  // 0 .. 5 s, the change at 1 s among them
+  EXPECT_TRUE(counter.ids_ok);
+  ASSERT_EQ(counter.deflection_utimes.size(), 60u);
+  for (size_t k = 0; k < 60; ++k)
+    EXPECT_EQ(counter.deflection_utimes[k], 1'000'000 + static_cast<int64_t>(k) * 100'000);
+  EXPECT_EQ(counter.trial_actions,
+            (std::vector<int8_t>{flexid::trial_control_t::kStart, flexid::trial_control_t::kStop}));
+}
+
+TEST_F(RigBinary, BadUsageIsOneLineAndExitTwo) {
+  const std::string bus = " --lcm 'udpm://239.255.76.67:7667?ttl=0' --actuator S1";
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {bus + " --protocol step:level=2",
+       "flexid-rig: protocol \"step:level=2\": missing key \"duration\"\n"},
+      {bus + " --protocol hold:level=1,duration=1 --effect wobble",
+       "flexid-rig: effect \"wobble\": unknown effect \"wobble\" (expected back_relaxation)\n"},
+      {bus + " --protocol hold:level=1,duration=1 --speed -1",
+       "flexid-rig: --speed must be 0 (as fast as possible) or a finite number >= 0.001\n"},
+      {bus + " --protocol hold:level=1,duration=1 --rate-hz 0",
+       "flexid-rig: the sample rate must be > 0 and <= 1e6 Hz\n"},
+      {bus + " --protocol hold:level=1,duration=1 --noise-mm -1",
+       "flexid-rig: the noise standard deviation must be finite and >= 0 mm\n"},
+      {bus + " --protocol hold:level=1,duration=1 --start-utime -5",
+       "flexid-rig: the start utime must be >= 0\n"},
+      {" --lcm 'udpm://239.255.76.67:7667?ttl=0' --actuator 'S 1' --protocol hold:level=1,"
+       "duration=1",
+       "flexid-rig: --actuator must be 1 to 64 of A-Z a-z 0-9 _ - (got \"S 1\")\n"},
+      {bus + " --protocol hold:level=1,duration=1 --model " + scratch_.File("missing.json"),
+       ""},  // the model file's own one-line message
+      {" --actuator S1 --protocol hold:level=1,duration=1", "flexid-rig: --lcm is required\n"},
+  };
+  for (const auto& [args, message] : cases) {
+    const auto r = Run(args);
+    EXPECT_EQ(r.exit_code, 2) << args << "\n" << r.err;
+    EXPECT_EQ(r.out, "") << args;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+    if (!message.empty()) {
+      EXPECT_EQ(r.err, message) << args;
+    }
+  }
+}
+
+TEST_F(RigBinary, ABadBusUrlIsAnOperationFailure) {
+  const auto r = Run("--lcm 'nosuchprovider://x' --actuator S1 --protocol hold:level=1,duration=1");
+  EXPECT_EQ(r.exit_code, 1) << r.err;
+  EXPECT_EQ(r.out, "");
+  // LCM prints its own diagnostic first ("Error: LCM provider ... not found").
+  const std::string ours = "flexid-rig: cannot open the LCM bus [url: nosuchprovider://x]\n";
+  ASSERT_GE(r.err.size(), ours.size()) << r.err;
+  EXPECT_EQ(r.err.substr(r.err.size() - ours.size()), ours) << r.err;
+}
+
+}  // namespace
+}  // namespace flexid
