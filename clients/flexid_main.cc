@@ -3,6 +3,7 @@
 #include <CLI/CLI.hpp>
 #include <iostream>
 
+#include "clients/cli/bus.h"
 #include "clients/cli/command.h"
 #include "flexid/version.h"
 #include "model/errors.h"
@@ -15,6 +16,9 @@ int main(int argc, char** argv) {
   flexid::cli::RegisterSimulateCommand(app);
   flexid::cli::RegisterPhysicsCommand(app);
   flexid::cli::RegisterIdentifyCommand(app);
+  flexid::cli::RegisterBusCommands(app);
+  app.add_option("--lcm", flexid::cli::LcmUrl(),
+                 "LCM URL of the flexidd bus (default udpm://239.255.76.67:7667?ttl=0)");
   try {
     app.parse(argc, argv);
   } catch (const CLI::Success& e) {

@@ -1,0 +1,1038 @@
+// flexidd under the DESIGN.md daemon load target, end to end on real LCM and SQLite:
+//
+//   "16 actuators at 500 Hz each (8,000 deflection + 8,000 voltage messages/s) recorded
+//    with no sample lost between what LCM delivered and what SQLite holds; prediction
+//    published < 1 ms (p99) after the deflection message arrives, also while an
+//    identification runs."
+//
+//   build/bench/daemon_load [--seconds 20] [--actuators 16] [--rate-hz 500]
+//                           [--identify-at 10] [--period-s 4] [--recv-buf-size BYTES]
+//                           [--tap-deflections 1] [--log-level warn] [--keep]
+//
+// A program that prints figures, not a test: no thresholds are checked; the targets are
+// printed beside the measurements.
+//
+// What runs, all in this process: flexidd (daemon::Daemon looping RunOnce(20) on its own
+// thread, a temporary database, lcm_url udpm://239.255.76.67:<random port>?ttl=0), a
+// publisher thread and a subscriber thread, each with its own LCM instance.
+//  - Publisher: per actuator L00..L<N-1>, at the rate in message time paced in real time
+//    (sleep_until), a voltage_sample_t (0/5 V square wave, phases staggered) and then a
+//    deflection_sample_t (first-order lag with dead time + noise), utime = message time.
+//    trial_control kStart for every actuator first, kStop for every one at the end; L00's
+//    trial is stopped and restarted 1 s before --identify-at so that a finished trial exists.
+//  - Subscriber: FLEXID/.*/PREDICTION (and, with --tap-deflections 1, FLEXID/.*/DEFLECTION,
+//    only for its kernel receive time stamp) and the RPC replies.
+//  - At --identify-at: "identify" {"actuator": "L00", "latest": 1} (L00's first trial).
+//
+// Latency figures, per deflection sample matched to its prediction:
+//  - external: steady_clock before the deflection's publish -> steady_clock in the
+//    subscriber's handler. Two loopback UDP hops, the daemon, and this program's own LCM
+//    receive thread and dispatch.
+//  - socket to socket: the kernel's receive time stamp (SO_TIMESTAMP, 1 us, which LCM
+//    passes as recv_utime) of the deflection on this program's socket -> that of the
+//    prediction. Multicast loopback queues a datagram on every member socket in the same
+//    sendmsg, so the first stamp is also when the deflection reached the daemon's socket:
+//    this figure is the daemon's handling (its LCM receive thread, queue, loop, handler,
+//    publish) plus one loopback hop, without this program's scheduling. It is the closest
+//    to the target's "after the deflection message arrives".
+#include <pthread.h>
+#include <sys/resource.h>
+#include <sys/socket.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cctype>
+#include <chrono>
+#include <cinttypes>
+#include <cmath>
+#include <condition_variable>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <flexid/deflection_sample_t.hpp>
+#include <flexid/prediction_t.hpp>
+#include <flexid/rpc_reply_t.hpp>
+#include <flexid/rpc_request_t.hpp>
+#include <flexid/trial_control_t.hpp>
+#include <flexid/voltage_sample_t.hpp>
+#include <fstream>
+#include <future>
+#include <lcm/lcm-cpp.hpp>
+#include <map>
+#include <mutex>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <random>
+#include <set>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "daemon/config.h"
+#include "daemon/daemon.h"
+#include "storage/database.h"
+
+namespace {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+using flexid::daemon::Counters;
+
+constexpr int64_t kUnset = INT64_MIN;
+constexpr int64_t kBaseUtime = 1'700'000'000'000'000;  // message time of sample 0
+constexpr double kHighV = 5.0;                         // square wave 0 / 5 V, duty 0.5
+constexpr double kGainMmPerV = 0.35, kTauS = 0.4, kDeadTimeS = 0.05, kNoiseMm = 0.003;
+constexpr const char* kClientId = "load";
+
+// --- options ---------------------------------------------------------------------------
+
+struct Options {
+  double seconds = 20;
+  int actuators = 16;
+  double rate_hz = 500;
+  double identify_at = 10;    // <= 0: no identification
+  double period_s = 4;        // square-wave period
+  int64_t recv_buf_size = 0;  // LCM udpm recv_buf_size= (0: LCM's default, the kernel's)
+  bool tap_deflections = true;
+  std::string log_level = "warn";
+  bool keep = false;  // keep the temporary database
+};
+
+[[noreturn]] void Usage(const std::string& problem) {
+  std::fprintf(stderr,
+               "daemon_load: %s\nusage: daemon_load [--seconds S] [--actuators N] [--rate-hz R] "
+               "[--identify-at S] [--period-s S] [--recv-buf-size BYTES] [--tap-deflections 0|1] "
+               "[--log-level LEVEL] [--keep]\n",
+               problem.c_str());
+  std::exit(2);
+}
+
+double Number(const std::string& flag, const char* text) {
+  char* end = nullptr;
+  const double value = std::strtod(text, &end);
+  if (end == text || *end != '\0' || !std::isfinite(value))
+    Usage(flag + " needs a number, not \"" + text + "\"");
+  return value;
+}
+
+Options ParseOptions(int argc, char** argv) {
+  Options o;
+  for (int i = 1; i < argc; ++i) {
+    const std::string flag = argv[i];
+    if (flag == "--keep") {
+      o.keep = true;
+      continue;
+    }
+    if (i + 1 >= argc) Usage(flag + " needs a value");
+    const char* value = argv[++i];
+    if (flag == "--seconds")
+      o.seconds = Number(flag, value);
+    else if (flag == "--actuators")
+      o.actuators = static_cast<int>(Number(flag, value));
+    else if (flag == "--rate-hz")
+      o.rate_hz = Number(flag, value);
+    else if (flag == "--identify-at")
+      o.identify_at = Number(flag, value);
+    else if (flag == "--period-s")
+      o.period_s = Number(flag, value);
+    else if (flag == "--recv-buf-size")
+      o.recv_buf_size = static_cast<int64_t>(Number(flag, value));
+    else if (flag == "--tap-deflections")
+      o.tap_deflections = Number(flag, value) != 0.0;
+    else if (flag == "--log-level")
+      o.log_level = value;
+    else
+      Usage("unknown option " + flag);
+  }
+  if (o.seconds < 1 || o.seconds > 3600) Usage("--seconds must be 1..3600");
+  if (o.actuators < 1 || o.actuators > 100) Usage("--actuators must be 1..100");
+  if (o.rate_hz < 1 || o.rate_hz > 10000) Usage("--rate-hz must be 1..10000");
+  if (o.period_s <= 0) Usage("--period-s must be positive");
+  if (o.recv_buf_size < 0) Usage("--recv-buf-size must be >= 0");
+  if (o.identify_at > 0 && (o.identify_at < 2 || o.identify_at > o.seconds - 0.5))
+    Usage("--identify-at must be 0 (off) or in [2, seconds - 0.5]");
+  return o;
+}
+
+// --- the synthetic rig -----------------------------------------------------------------
+
+struct Plan {
+  int actuators = 0;
+  int64_t samples = 0;  // per actuator
+  double rate_hz = 0, period_s = 0;
+  int64_t restart_k = -1;  // tick at which L00's trial is stopped and restarted (-1: never)
+
+  int64_t Utime(int64_t k) const {
+    return kBaseUtime + std::llround(static_cast<double>(k) * 1e6 / rate_hz);
+  }
+  std::optional<int64_t> Index(int64_t utime) const {
+    const int64_t k = std::llround(static_cast<double>(utime - kBaseUtime) * rate_hz / 1e6);
+    if (k < 0 || k >= samples || Utime(k) != utime) return std::nullopt;
+    return k;
+  }
+  double Voltage(int actuator, int64_t k) const {
+    if (k < 0) return 0.0;
+    const double t = static_cast<double>(k) / rate_hz +
+                     period_s * static_cast<double>(actuator) / static_cast<double>(actuators);
+    return std::fmod(t, period_s) < 0.5 * period_s ? kHighV : 0.0;
+  }
+  size_t Slot(int actuator, int64_t k) const {
+    return static_cast<size_t>(actuator) * static_cast<size_t>(samples) + static_cast<size_t>(k);
+  }
+  size_t Slots() const { return static_cast<size_t>(actuators) * static_cast<size_t>(samples); }
+};
+
+std::string ActuatorId(int i) {
+  // i < 100 (checked by ParseOptions)
+  return std::string("L") + static_cast<char>('0' + i / 10 % 10) + static_cast<char>('0' + i % 10);
+}
+
+std::optional<int> ActuatorIndex(const std::string& id, int actuators) {
+  if (id.size() != 3 || id[0] != 'L' || !std::isdigit(static_cast<unsigned char>(id[1])) ||
+      !std::isdigit(static_cast<unsigned char>(id[2])))
+    return std::nullopt;
+  const int i = (id[1] - '0') * 10 + (id[2] - '0');
+  if (i >= actuators) return std::nullopt;
+  return i;
+}
+
+int64_t Since(Clock::time_point t0, Clock::time_point t) {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(t - t0).count();
+}
+
+void NameThread(const char* name) { pthread_setname_np(pthread_self(), name); }
+
+pid_t ThreadId() { return static_cast<pid_t>(::syscall(SYS_gettid)); }
+
+// --- publisher -------------------------------------------------------------------------
+
+struct PublisherReport {
+  int64_t ticks = 0, late_ticks = 0, publish_failures = 0;
+  int64_t max_lateness_ns = 0, sum_lateness_ns = 0, max_tick_ns = 0;
+  Clock::time_point end;
+};
+
+class Publisher {
+ public:
+  Publisher(const Plan& plan, const std::string& url, Clock::time_point t0)
+      : plan_(plan),
+        lcm_(url),
+        t0_(t0),
+        publish_ns_(plan.Slots(), kUnset),
+        deflection_mm_(plan.Slots(), NAN) {}
+  bool good() { return lcm_.good(); }
+
+  void Run() {
+    NameThread("bench-pub");
+    for (int i = 0; i < plan_.actuators; ++i)
+      Control(i, flexid::trial_control_t::kStart, plan_.Utime(0) - 1, "daemon_load");
+    std::mt19937_64 random(42);
+    std::normal_distribution<double> noise(0.0, kNoiseMm);
+    const double a = std::exp(-1.0 / (plan_.rate_hz * kTauS));
+    const auto dead = static_cast<int64_t>(std::llround(kDeadTimeS * plan_.rate_hz));
+    std::vector<double> state(static_cast<size_t>(plan_.actuators), 0.0);
+    flexid::voltage_sample_t v;
+    flexid::deflection_sample_t d;
+    std::vector<std::string> voltage_channel, deflection_channel, ids;
+    for (int i = 0; i < plan_.actuators; ++i) {
+      ids.push_back(ActuatorId(i));
+      voltage_channel.push_back("FLEXID/" + ids.back() + "/VOLTAGE");
+      deflection_channel.push_back("FLEXID/" + ids.back() + "/DEFLECTION");
+    }
+    for (int64_t k = 0; k < plan_.samples; ++k) {
+      const Clock::time_point due =
+          t0_ +
+          std::chrono::nanoseconds(std::llround(static_cast<double>(k) * 1e9 / plan_.rate_hz));
+      std::this_thread::sleep_until(due);
+      const Clock::time_point start = Clock::now();
+      const int64_t lateness = Since(due, start);
+      report_.max_lateness_ns = std::max(report_.max_lateness_ns, lateness);
+      report_.sum_lateness_ns += lateness;
+      if (static_cast<double>(lateness) > 1e9 / plan_.rate_hz) ++report_.late_ticks;
+      const int64_t utime = plan_.Utime(k);
+      if (k == plan_.restart_k) {
+        Control(0, flexid::trial_control_t::kStop, utime - 1, "");
+        Control(0, flexid::trial_control_t::kStart, utime, "daemon_load second trial");
+      }
+      for (int i = 0; i < plan_.actuators; ++i) {
+        const size_t s = static_cast<size_t>(i);
+        v.utime = d.utime = utime;
+        v.actuator_id = d.actuator_id = ids[s];
+        v.voltage_V = plan_.Voltage(i, k);
+        state[s] = a * state[s] + (1.0 - a) * kGainMmPerV * plan_.Voltage(i, k - dead);
+        d.deflection_mm = state[s] + noise(random);
+        if (lcm_.publish(voltage_channel[s], &v) != 0) ++report_.publish_failures;
+        deflection_mm_[plan_.Slot(i, k)] = d.deflection_mm;
+        publish_ns_[plan_.Slot(i, k)] = Since(t0_, Clock::now());
+        if (lcm_.publish(deflection_channel[s], &d) != 0) ++report_.publish_failures;
+      }
+      report_.max_tick_ns = std::max(report_.max_tick_ns, Since(start, Clock::now()));
+      ++report_.ticks;
+    }
+    report_.end = Clock::now();
+    for (int i = 0; i < plan_.actuators; ++i)
+      Control(i, flexid::trial_control_t::kStop, plan_.Utime(plan_.samples - 1) + 1, "");
+  }
+
+  const PublisherReport& report() const { return report_; }
+  const std::vector<int64_t>& publish_ns() const { return publish_ns_; }
+  const std::vector<double>& deflection_mm() const { return deflection_mm_; }
+
+ private:
+  void Control(int actuator, int8_t action, int64_t utime, const std::string& protocol) {
+    flexid::trial_control_t c;
+    c.utime = utime;
+    c.actuator_id = ActuatorId(actuator);
+    c.action = action;
+    c.protocol = protocol;
+    if (lcm_.publish("FLEXID/TRIAL", &c) != 0) ++report_.publish_failures;
+  }
+
+  const Plan plan_;
+  lcm::LCM lcm_;
+  const Clock::time_point t0_;
+  std::vector<int64_t> publish_ns_;    // per (actuator, k): steady ns since t0, before publish
+  std::vector<double> deflection_mm_;  // per (actuator, k): the value published
+  PublisherReport report_;
+};
+
+// --- subscriber ------------------------------------------------------------------------
+
+struct ReplyRecord {
+  flexid::rpc_reply_t reply;
+  Clock::time_point received;
+};
+
+class Subscriber {
+ public:
+  Subscriber(const Plan& plan, const std::string& url, bool tap_deflections)
+      : plan_(plan),
+        url_(url),
+        tap_(tap_deflections),
+        prediction_rx_ns_(plan.Slots(), kUnset),
+        prediction_kernel_us_(plan.Slots(), kUnset),
+        deflection_kernel_us_(plan.Slots(), kUnset),
+        model_version_(plan.Slots(), -1) {}
+
+  // Starts the thread; false if LCM cannot be joined.
+  bool Start() {
+    std::promise<bool> ready;
+    auto future = ready.get_future();
+    thread_ = std::thread([this, &ready] { Run(&ready); });
+    return future.get();
+  }
+  void Stop() {
+    stop_ = true;
+    if (thread_.joinable()) thread_.join();
+  }
+  // The origin of the recorded times; set before the publisher starts.
+  void SetT0(Clock::time_point t0) { t0_ns_ = t0.time_since_epoch().count(); }
+  pid_t tid() const { return tid_; }
+
+  // Sends a request and waits for its reply.
+  std::optional<ReplyRecord> Call(const std::string& method, const nlohmann::json& args,
+                                  std::chrono::milliseconds timeout,
+                                  Clock::time_point* sent = nullptr) {
+    flexid::rpc_request_t request;
+    request.request_id = "load-" + std::to_string(++requests_);
+    request.client_id = kClientId;
+    request.method = method;
+    request.args_json = args.dump();
+    request.utime = std::chrono::duration_cast<std::chrono::microseconds>(
+                        std::chrono::system_clock::now().time_since_epoch())
+                        .count();
+    std::unique_lock lock(mutex_);
+    if (sent) *sent = Clock::now();
+    lcm_->publish("FLEXID/RPC/REQUEST", &request);  // LCM's publish is thread-safe
+    replied_.wait_for(lock, timeout, [&] { return replies_.count(request.request_id) > 0; });
+    const auto it = replies_.find(request.request_id);
+    if (it == replies_.end()) return std::nullopt;
+    return it->second;
+  }
+
+  int64_t received() const { return received_; }
+  int64_t unmatched() const { return unmatched_; }
+  int64_t duplicates() const { return duplicates_; }
+  const std::vector<int64_t>& prediction_rx_ns() const { return prediction_rx_ns_; }
+  const std::vector<int64_t>& prediction_kernel_us() const { return prediction_kernel_us_; }
+  const std::vector<int64_t>& deflection_kernel_us() const { return deflection_kernel_us_; }
+  const std::vector<int32_t>& model_version() const { return model_version_; }
+
+ private:
+  void Run(std::promise<bool>* ready) {
+    NameThread("bench-sub");  // LCM's receive thread, created below, inherits the name
+    tid_ = ThreadId();
+    lcm_ = std::make_unique<lcm::LCM>(url_);
+    if (!lcm_->good()) {
+      ready->set_value(false);
+      return;
+    }
+    lcm_->subscribeFunction("FLEXID/.*/PREDICTION", &Subscriber::OnPrediction, this)
+        ->setQueueCapacity(1 << 20);
+    if (tap_)
+      lcm_->subscribeFunction("FLEXID/.*/DEFLECTION", &Subscriber::OnDeflection, this)
+          ->setQueueCapacity(1 << 20);
+    lcm_->subscribeFunction(std::string("FLEXID/RPC/REPLY/") + kClientId, &Subscriber::OnReply,
+                            this)
+        ->setQueueCapacity(100);
+    ready->set_value(true);
+    while (!stop_) lcm_->handleTimeout(10);
+  }
+
+  static void OnPrediction(const lcm::ReceiveBuffer* rbuf, const std::string&, Subscriber* self) {
+    const Clock::time_point now = Clock::now();
+    flexid::prediction_t p;
+    if (p.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) <= 0) return;
+    ++self->received_;
+    const auto i = ActuatorIndex(p.actuator_id, self->plan_.actuators);
+    const auto k = self->plan_.Index(p.utime);
+    if (!i || !k) {
+      ++self->unmatched_;
+      return;
+    }
+    const size_t s = self->plan_.Slot(*i, *k);
+    if (self->prediction_rx_ns_[s] != kUnset) {
+      ++self->duplicates_;
+      return;
+    }
+    self->prediction_rx_ns_[s] =
+        Since(Clock::time_point(Clock::duration(self->t0_ns_.load())), now);
+    self->prediction_kernel_us_[s] = rbuf->recv_utime;
+    self->model_version_[s] = p.model_version;
+  }
+
+  static void OnDeflection(const lcm::ReceiveBuffer* rbuf, const std::string&, Subscriber* self) {
+    flexid::deflection_sample_t d;
+    if (d.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) <= 0) return;
+    const auto i = ActuatorIndex(d.actuator_id, self->plan_.actuators);
+    const auto k = self->plan_.Index(d.utime);
+    if (i && k) self->deflection_kernel_us_[self->plan_.Slot(*i, *k)] = rbuf->recv_utime;
+  }
+
+  static void OnReply(const lcm::ReceiveBuffer* rbuf, const std::string&, Subscriber* self) {
+    flexid::rpc_reply_t r;
+    if (r.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) <= 0) return;
+    {
+      std::lock_guard lock(self->mutex_);
+      self->replies_[r.request_id] = {r, Clock::now()};
+    }
+    self->replied_.notify_all();
+  }
+
+  const Plan plan_;
+  const std::string url_;
+  const bool tap_;
+  std::atomic<Clock::rep> t0_ns_{0};
+  std::unique_ptr<lcm::LCM> lcm_;
+  std::thread thread_;
+  std::atomic<bool> stop_{false};
+  pid_t tid_ = 0;
+  std::atomic<int> requests_{0};
+  std::mutex mutex_;
+  std::condition_variable replied_;
+  std::map<std::string, ReplyRecord> replies_;
+  // Written by the subscriber thread only; read after it has been joined.
+  int64_t received_ = 0, unmatched_ = 0, duplicates_ = 0;
+  std::vector<int64_t> prediction_rx_ns_;      // steady ns since t0 in the handler
+  std::vector<int64_t> prediction_kernel_us_;  // SO_TIMESTAMP of the prediction, us
+  std::vector<int64_t> deflection_kernel_us_;  // SO_TIMESTAMP of the deflection, us
+  std::vector<int32_t> model_version_;
+};
+
+// --- the daemon on its own thread ------------------------------------------------------
+
+class DaemonThread {
+ public:
+  // Constructs the daemon on its own thread (so that the threads it starts, the sample
+  // writer, LCM's receive thread and the identification worker, are named "flexidd");
+  // rethrows what the constructor threw.
+  void Start(const flexid::daemon::Config& config) {
+    std::promise<void> ready;
+    auto future = ready.get_future();
+    thread_ = std::thread([this, config, &ready] {
+      NameThread("flexidd");
+      try {
+        daemon_ = std::make_unique<flexid::daemon::Daemon>(config);
+      } catch (...) {
+        ready.set_exception(std::current_exception());
+        return;
+      }
+      NameThread("flexidd-loop");
+      tid_ = ThreadId();
+      ready.set_value();
+      while (!stop_) daemon_->RunOnce(20);
+      final_ = daemon_->counters();  // the loop has stopped: no race with RunOnce
+      daemon_.reset();               // the writer commits what is left, threads join
+    });
+    future.get();
+  }
+  // Stops the loop, destroys the daemon and returns its last counters.
+  Counters Stop() {
+    stop_ = true;
+    if (thread_.joinable()) thread_.join();
+    return final_;
+  }
+  pid_t tid() const { return tid_; }
+  ~DaemonThread() { Stop(); }
+
+ private:
+  std::unique_ptr<flexid::daemon::Daemon> daemon_;
+  std::thread thread_;
+  std::atomic<bool> stop_{false};
+  pid_t tid_ = 0;
+  Counters final_;
+};
+
+// --- /proc: sockets and threads of this process ----------------------------------------
+
+struct UdpSocket {
+  uint64_t inode = 0;
+  int64_t drops = 0;
+  int64_t rx_queue = 0;
+};
+
+// The UDP sockets bound to this port (from /proc/net/udp), by inode.
+std::map<uint64_t, UdpSocket> UdpSockets(int port) {
+  std::map<uint64_t, UdpSocket> out;
+  std::ifstream in("/proc/net/udp");
+  std::string line;
+  std::getline(in, line);  // header
+  while (std::getline(in, line)) {
+    std::istringstream f(line);
+    std::string sl, local, remote, st, queues, timer, retr, uid, timeout;
+    UdpSocket s;
+    std::string ref, pointer;
+    f >> sl >> local >> remote >> st >> queues >> timer >> retr >> uid >> timeout >> s.inode >>
+        ref >> pointer >> s.drops;
+    const size_t colon = local.find(':');
+    if (colon == std::string::npos) continue;
+    if (std::stoi(local.substr(colon + 1), nullptr, 16) != port) continue;
+    const size_t qcolon = queues.find(':');
+    if (qcolon != std::string::npos)
+      s.rx_queue = std::stoll(queues.substr(qcolon + 1), nullptr, 16);
+    out[s.inode] = s;
+  }
+  return out;
+}
+
+// SO_RCVBUF of the socket of this process with that inode (-1 if not found).
+int ReceiveBufferBytes(uint64_t inode) {
+  const std::string wanted = "socket:[" + std::to_string(inode) + "]";
+  std::error_code ec;
+  for (const auto& entry : fs::directory_iterator("/proc/self/fd", ec)) {
+    std::error_code link_ec;
+    if (fs::read_symlink(entry.path(), link_ec).string() != wanted) continue;
+    const int fd = std::stoi(entry.path().filename().string());
+    int size = 0;
+    socklen_t len = sizeof size;
+    if (getsockopt(fd, SOL_SOCKET, SO_RCVBUF, &size, &len) == 0) return size;
+  }
+  return -1;
+}
+
+int64_t ReadNumberFile(const std::string& path) {
+  std::ifstream in(path);
+  int64_t value = -1;
+  in >> value;
+  return value;
+}
+
+// UDP RcvbufErrors of the whole host (/proc/net/snmp).
+int64_t UdpRcvbufErrors() {
+  std::ifstream in("/proc/net/snmp");
+  std::string header, values;
+  while (std::getline(in, header)) {
+    if (header.rfind("Udp:", 0) != 0) continue;
+    std::getline(in, values);
+    std::istringstream h(header), v(values);
+    std::string name, value;
+    while (h >> name && v >> value)
+      if (name == "RcvbufErrors") return std::stoll(value);
+  }
+  return -1;
+}
+
+struct ThreadCpu {
+  std::string name;
+  int64_t cpu_ns = 0;
+};
+
+// CPU time of every thread of this process, by tid (schedstat: ns on a CPU).
+std::map<pid_t, ThreadCpu> ThreadCpuTimes() {
+  std::map<pid_t, ThreadCpu> out;
+  std::error_code ec;
+  for (const auto& entry : fs::directory_iterator("/proc/self/task", ec)) {
+    const pid_t tid = static_cast<pid_t>(std::stol(entry.path().filename().string()));
+    ThreadCpu t;
+    std::ifstream comm(entry.path() / "comm");
+    std::getline(comm, t.name);
+    t.cpu_ns = ReadNumberFile((entry.path() / "schedstat").string());
+    out[tid] = t;
+  }
+  return out;
+}
+
+double CpuSeconds(const rusage& u) {
+  return static_cast<double>(u.ru_utime.tv_sec + u.ru_stime.tv_sec) +
+         1e-6 * static_cast<double>(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+}
+
+// --- statistics ------------------------------------------------------------------------
+
+struct Stats {
+  size_t n = 0;
+  double p50 = NAN, p90 = NAN, p99 = NAN, p999 = NAN, max = NAN;
+  size_t over_1ms = 0;
+};
+
+Stats Summarise(std::vector<double> us) {
+  Stats s;
+  s.n = us.size();
+  if (us.empty()) return s;
+  std::sort(us.begin(), us.end());
+  auto at = [&](double q) {  // nearest rank
+    const auto rank = static_cast<size_t>(std::ceil(q * static_cast<double>(us.size())));
+    return us[std::min(us.size() - 1, rank == 0 ? 0 : rank - 1)];
+  };
+  s.p50 = at(0.50);
+  s.p90 = at(0.90);
+  s.p99 = at(0.99);
+  s.p999 = at(0.999);
+  s.max = us.back();
+  s.over_1ms = static_cast<size_t>(us.end() - std::upper_bound(us.begin(), us.end(), 1000.0));
+  return s;
+}
+
+std::string Ms(double us) {
+  if (!std::isfinite(us)) return "-";
+  char b[32];
+  std::snprintf(b, sizeof b, "%.3f", us / 1000.0);
+  return b;
+}
+
+void PrintStatsRow(const char* label, const Stats& s) {
+  std::printf("  %-34s %8zu %8s %8s %8s %8s %9s %8zu\n", label, s.n, Ms(s.p50).c_str(),
+              Ms(s.p90).c_str(), Ms(s.p99).c_str(), Ms(s.p999).c_str(), Ms(s.max).c_str(),
+              s.over_1ms);
+}
+
+std::string Join(int argc, char** argv) {
+  std::string out;
+  for (int i = 0; i < argc; ++i) {
+    if (i) out += ' ';
+    out += argv[i];
+  }
+  return out;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const Options opt = ParseOptions(argc, argv);
+  std::printf("daemon_load: flexidd under load, in process, real LCM (udpm) and SQLite\n");
+  std::printf("command: %s\n", Join(argc, argv).c_str());
+
+  Plan plan;
+  plan.actuators = opt.actuators;
+  plan.rate_hz = opt.rate_hz;
+  plan.period_s = opt.period_s;
+  plan.samples = static_cast<int64_t>(std::llround(opt.seconds * opt.rate_hz));
+  const bool identify = opt.identify_at > 0;
+  if (identify)
+    plan.restart_k = static_cast<int64_t>(std::llround((opt.identify_at - 1) * opt.rate_hz));
+
+  std::random_device device;
+  const int port = std::uniform_int_distribution<int>(20000, 60000)(device);
+  std::string url = "udpm://239.255.76.67:" + std::to_string(port) + "?ttl=0";
+  if (opt.recv_buf_size > 0) url += "&recv_buf_size=" + std::to_string(opt.recv_buf_size);
+
+  char dir_template[] = "/tmp/daemon_load.XXXXXX";
+  if (!mkdtemp(dir_template)) {
+    std::fprintf(stderr, "daemon_load: cannot create a temporary directory\n");
+    return 1;
+  }
+  const fs::path dir = dir_template;
+  const std::string database = (dir / "flexid.db").string();
+
+  flexid::daemon::Config config;
+  config.database = database;
+  config.lcm_url = url;
+  config.log_file = "";
+  config.log_level = opt.log_level;
+  config.daemon_id = "load";
+  try {
+    flexid::daemon::Validate(config);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "daemon_load: %s\n", e.what());
+    return 1;
+  }
+  flexid::daemon::SetUpLogging(config);
+
+  std::printf("lcm url: %s   database: %s\n", url.c_str(), database.c_str());
+  std::printf(
+      "load: %d actuators x %g Hz = %g deflection + %g voltage messages/s for %g s (message "
+      "time paced in real time); square wave 0/%g V, period %g s\n",
+      opt.actuators, opt.rate_hz, opt.actuators * opt.rate_hz, opt.actuators * opt.rate_hz,
+      opt.seconds, kHighV, opt.period_s);
+
+  // The subscriber first, so that its socket can be told from the daemon's.
+  Subscriber subscriber(plan, url, opt.tap_deflections);
+  if (!subscriber.Start()) {
+    std::fprintf(stderr, "daemon_load: cannot join the LCM bus at %s\n", url.c_str());
+    return 1;
+  }
+  const auto sockets_before = UdpSockets(port);
+  const auto threads_before_daemon = ThreadCpuTimes();
+  DaemonThread daemon;
+  try {
+    daemon.Start(config);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "daemon_load: the daemon did not start: %s\n", e.what());
+    subscriber.Stop();
+    return 1;
+  }
+  uint64_t daemon_inode = 0, bench_inode = 0;
+  for (const auto& [inode, s] : UdpSockets(port))
+    (sockets_before.count(inode) ? bench_inode : daemon_inode) = inode;
+  const int64_t rcvbuf_errors_before = UdpRcvbufErrors();
+
+  // Give the daemon's loop a moment, then fix t0 half a second ahead: the publisher sends
+  // the trial starts at once and the first samples at t0.
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  const Clock::time_point t0 = Clock::now() + std::chrono::milliseconds(500);
+  subscriber.SetT0(t0);
+  Publisher publisher(plan, url, t0);
+  if (!publisher.good()) {
+    std::fprintf(stderr, "daemon_load: the publisher cannot join the bus\n");
+    subscriber.Stop();
+    return 1;
+  }
+  rusage usage_start{};
+  getrusage(RUSAGE_SELF, &usage_start);
+  const auto threads_start = ThreadCpuTimes();
+  const Clock::time_point wall_start = Clock::now();
+  std::thread publisher_thread([&] { publisher.Run(); });
+
+  // Identification of L00 on its first trial, while the load goes on.
+  std::optional<ReplyRecord> identify_reply;
+  Clock::time_point identify_sent{};
+  if (identify) {
+    std::this_thread::sleep_until(t0 +
+                                  std::chrono::nanoseconds(std::llround(opt.identify_at * 1e9)));
+    identify_reply = subscriber.Call("identify", {{"actuator", "L00"}, {"latest", 1}},
+                                     std::chrono::seconds(120), &identify_sent);
+  }
+  publisher_thread.join();
+
+  // Drain: until the daemon has stored every deflection it accepted (all are in trials).
+  Counters status;
+  bool drained = false;
+  const Clock::time_point drain_start = Clock::now();
+  int64_t last_received = -1;
+  while (Clock::now() - drain_start < std::chrono::seconds(30)) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+    const auto r = subscriber.Call("status", nlohmann::json::object(), std::chrono::seconds(5));
+    if (!r || r->reply.status != flexid::rpc_reply_t::kOk) continue;
+    const auto j = nlohmann::json::parse(r->reply.result_json);
+    status.messages_received = j.value("messages_received", int64_t{0});
+    status.samples_stored = j.value("samples_stored", int64_t{0});
+    status.predictions_published = j.value("predictions_published", int64_t{0});
+    status.dropped_queue_full = j.value("dropped_queue_full", int64_t{0});
+    const bool stable = status.messages_received == last_received;
+    last_received = status.messages_received;
+    if (stable &&
+        status.samples_stored >= status.predictions_published - status.dropped_queue_full) {
+      drained = true;
+      break;
+    }
+  }
+  const double drain_s = 1e-9 * static_cast<double>(Since(drain_start, Clock::now()));
+  const Clock::time_point wall_end = publisher.report().end;
+  rusage usage_end{};
+  getrusage(RUSAGE_SELF, &usage_end);
+  const auto threads_end = ThreadCpuTimes();
+  const auto sockets_end = UdpSockets(port);
+  const int64_t rcvbuf_errors_after = UdpRcvbufErrors();
+  const int daemon_rcvbuf = ReceiveBufferBytes(daemon_inode);
+  const int bench_rcvbuf = ReceiveBufferBytes(bench_inode);
+  const pid_t daemon_loop_tid = daemon.tid(), subscriber_tid = subscriber.tid();
+
+  const Counters c = daemon.Stop();  // destroys the daemon: the writer commits what is left
+  subscriber.Stop();
+
+  // --- what SQLite holds ---------------------------------------------------------------
+  const size_t slots = plan.Slots();
+  std::vector<char> stored(slots, 0);
+  int64_t stored_rows = 0, value_mismatches = 0, stale_voltage = 0, foreign_rows = 0;
+  std::vector<flexid::storage::Trial> trials;
+  std::string integrity;
+  try {
+    flexid::storage::Database db = flexid::storage::Database::Open(database);
+    trials = db.Trials(std::nullopt, -1);
+    for (const auto& t : trials) {
+      const auto i = ActuatorIndex(t.actuator_id, plan.actuators);
+      for (const auto& s : db.Samples(t.id)) {
+        ++stored_rows;
+        const auto k = plan.Index(s.utime);
+        if (!i || !k) {
+          ++foreign_rows;
+          continue;
+        }
+        const size_t slot = plan.Slot(*i, *k);
+        stored[slot] = 1;
+        if (s.deflection_mm != publisher.deflection_mm()[slot]) ++value_mismatches;
+        if (s.voltage_V != plan.Voltage(*i, *k)) ++stale_voltage;
+      }
+    }
+    integrity = db.IntegrityCheck();
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "daemon_load: reading the database: %s\n", e.what());
+    integrity = e.what();
+  }
+
+  // --- latency -------------------------------------------------------------------------
+  const auto& pub = publisher.publish_ns();
+  const auto& rx = subscriber.prediction_rx_ns();
+  const auto& pk = subscriber.prediction_kernel_us();
+  const auto& dk = subscriber.deflection_kernel_us();
+  const int64_t window_start = identify ? Since(t0, identify_sent) : kUnset;
+  const int64_t window_end =
+      identify_reply ? Since(t0, identify_reply->received) : (identify ? INT64_MAX : kUnset);
+  auto in_window = [&](int64_t ns) { return identify && ns >= window_start && ns <= window_end; };
+  std::vector<double> ext_all, ext_out, ext_in, s2s_all, s2s_out, s2s_in;
+  const auto seconds = static_cast<size_t>(std::ceil(opt.seconds)) + 1;
+  std::vector<std::vector<double>> ext_by_s(seconds), s2s_by_s(seconds);
+  std::vector<int64_t> published_by_s(seconds, 0), missing_by_s(seconds, 0),
+      nopred_by_s(seconds, 0);
+  std::vector<int64_t> stored_by_actuator(static_cast<size_t>(plan.actuators), 0);
+  int64_t published = 0, predictions_matched = 0, model_swapped_at_k = -1;
+  for (int i = 0; i < plan.actuators; ++i) {
+    for (int64_t k = 0; k < plan.samples; ++k) {
+      const size_t s = plan.Slot(i, k);
+      if (pub[s] == kUnset) continue;
+      ++published;
+      const size_t sec = std::min(seconds - 1, static_cast<size_t>(pub[s] / 1'000'000'000));
+      ++published_by_s[sec];
+      if (stored[s]) {
+        ++stored_by_actuator[static_cast<size_t>(i)];
+      } else {
+        ++missing_by_s[sec];
+      }
+      if (rx[s] == kUnset) {
+        ++nopred_by_s[sec];
+        continue;
+      }
+      ++predictions_matched;
+      if (i == 0 && model_swapped_at_k < 0 && subscriber.model_version()[s] > 0)
+        model_swapped_at_k = k;
+      const double ext_us = 1e-3 * static_cast<double>(rx[s] - pub[s]);
+      ext_all.push_back(ext_us);
+      (in_window(pub[s]) ? ext_in : ext_out).push_back(ext_us);
+      ext_by_s[sec].push_back(ext_us);
+      if (dk[s] != kUnset && pk[s] != kUnset) {
+        const auto s2s_us = static_cast<double>(pk[s] - dk[s]);
+        s2s_all.push_back(s2s_us);
+        (in_window(pub[s]) ? s2s_in : s2s_out).push_back(s2s_us);
+        s2s_by_s[sec].push_back(s2s_us);
+      }
+    }
+  }
+
+  // --- report --------------------------------------------------------------------------
+  const PublisherReport& pr = publisher.report();
+  const double wall_s = 1e-9 * static_cast<double>(Since(wall_start, wall_end));
+  const double cpu_s = CpuSeconds(usage_end) - CpuSeconds(usage_start);
+  const int64_t delivered = c.predictions_published;  // one prediction per accepted deflection
+  const int64_t delivered_voltages = c.samples_accepted - c.predictions_published;
+  const int64_t rejected = c.rejected_malformed + c.rejected_nonfinite + c.rejected_out_of_order +
+                           c.rejected_unknown_actuator;
+  const int64_t daemon_drops =
+      sockets_end.count(daemon_inode) ? sockets_end.at(daemon_inode).drops : -1;
+  const int64_t bench_drops =
+      sockets_end.count(bench_inode) ? sockets_end.at(bench_inode).drops : -1;
+
+  std::printf(
+      "sockets: daemon SO_RCVBUF %d bytes, bench SO_RCVBUF %d bytes "
+      "(net.core.rmem_default %" PRId64 ", rmem_max %" PRId64 ")\n",
+      daemon_rcvbuf, bench_rcvbuf, ReadNumberFile("/proc/sys/net/core/rmem_default"),
+      ReadNumberFile("/proc/sys/net/core/rmem_max"));
+
+  std::printf("\n== publisher (real-time schedule) ==\n");
+  std::printf("  ticks %" PRId64 " of %" PRId64 ", each %d voltage + %d deflection messages\n",
+              pr.ticks, plan.samples, plan.actuators, plan.actuators);
+  std::printf(
+      "  tick start lateness: mean %.3f ms, max %.3f ms; ticks later than one period "
+      "(%.3f ms): %" PRId64 "%s\n",
+      pr.ticks ? 1e-6 * static_cast<double>(pr.sum_lateness_ns) / static_cast<double>(pr.ticks)
+               : 0.0,
+      1e-6 * static_cast<double>(pr.max_lateness_ns), 1e3 / plan.rate_hz, pr.late_ticks,
+      pr.late_ticks ? "  <-- FELL BEHIND (then caught up in a burst)" : "");
+  std::printf("  longest tick (publishing its messages): %.3f ms; publish failures: %" PRId64 "\n",
+              1e-6 * static_cast<double>(pr.max_tick_ns), pr.publish_failures);
+
+  std::printf("\n== counts ==                                         measured   target\n");
+  std::printf("  published deflections                          %10" PRId64 "\n", published);
+  std::printf("  published voltages                             %10" PRId64 "\n", published);
+  std::printf("  delivered deflections (daemon accepted;        %10" PRId64 "\n", delivered);
+  std::printf("    = predictions_published)\n");
+  std::printf("  delivered voltages (samples_accepted - above)  %10" PRId64 "\n",
+              delivered_voltages);
+  std::printf("  stored in SQLite (rows, all trials)            %10" PRId64
+              "   (samples_stored "
+              "counter %" PRId64 ")\n",
+              stored_rows, c.samples_stored);
+  std::printf("  LOST between delivery and storage              %10" PRId64
+              "   0 (DESIGN.md: none)\n",
+              delivered - stored_rows);
+  std::printf("    of which dropped_queue_full                  %10" PRId64 "\n",
+              c.dropped_queue_full);
+  std::printf("  lost on the bus (published - delivered)        %10" PRId64
+              "   (UDP loopback; not a daemon target)\n",
+              published - delivered);
+  std::printf("    kernel drops at the daemon's socket          %10" PRId64
+              "   (all datagrams: voltages, deflections, its own predictions)\n",
+              daemon_drops);
+  std::printf("    host UDP RcvbufErrors during the run         %10" PRId64 "\n",
+              rcvbuf_errors_after - rcvbuf_errors_before);
+  std::printf("  rejected: malformed %" PRId64 ", nonfinite %" PRId64 ", out_of_order %" PRId64
+              ", unknown_actuator %" PRId64 " (total %" PRId64 ")\n",
+              c.rejected_malformed, c.rejected_nonfinite, c.rejected_out_of_order,
+              c.rejected_unknown_actuator, rejected);
+  std::printf("  stored rows: deflection differs from published %" PRId64
+              ", voltage not the one published at that utime %" PRId64 ", unknown %" PRId64 "\n",
+              value_mismatches, stale_voltage, foreign_rows);
+  std::printf("  predictions received by this program           %10" PRId64 "   (matched %" PRId64
+              ", duplicates %" PRId64 ", unmatched %" PRId64 "; return-path loss %" PRId64
+              ", kernel drops at this program's socket %" PRId64 ")\n",
+              subscriber.received(), predictions_matched, subscriber.duplicates(),
+              subscriber.unmatched(), delivered - predictions_matched, bench_drops);
+  std::printf("  alerts raised %" PRId64 "; messages_received %" PRId64 "\n", c.alerts_raised,
+              c.messages_received);
+  std::printf("  drain after the last sample: %.2f s (%s)\n", drain_s,
+              drained ? "samples_stored caught up" : "TIMED OUT: samples_stored did not catch up");
+  std::printf("  database integrity: %s\n", integrity.c_str());
+  std::printf(
+      "  wall time %.3f s (publishing); CPU time of the process %.3f s = %.0f%% of one "
+      "core (2 cores here)\n",
+      wall_s, cpu_s, wall_s > 0 ? 100.0 * cpu_s / wall_s : 0.0);
+
+  std::printf(
+      "\n== latency, deflection -> its prediction (ms) ==   target: p99 < 1 ms, also "
+      "during identification\n");
+  std::printf("  %-34s %8s %8s %8s %8s %8s %9s %8s\n", "", "n", "p50", "p90", "p99", "p99.9", "max",
+              ">1ms");
+  PrintStatsRow("external, all", Summarise(ext_all));
+  if (identify) {
+    PrintStatsRow("external, outside identification", Summarise(ext_out));
+    PrintStatsRow("external, during identification", Summarise(ext_in));
+  }
+  if (opt.tap_deflections) {
+    PrintStatsRow("socket to socket, all", Summarise(s2s_all));
+    if (identify) {
+      PrintStatsRow("socket to socket, outside ident.", Summarise(s2s_out));
+      PrintStatsRow("socket to socket, during ident.", Summarise(s2s_in));
+    }
+  }
+  std::printf(
+      "  external: publish() call -> this program's handler: two loopback UDP hops + the "
+      "daemon + this program's LCM receive thread and dispatch.\n");
+  std::printf(
+      "  socket to socket: kernel receive stamps (SO_TIMESTAMP, 1 us) of the deflection "
+      "and of the prediction: the daemon (LCM receive thread, queue, loop, handler, "
+      "publish) + one hop.\n");
+
+  std::printf("\n== identification ==\n");
+  if (!identify) {
+    std::printf("  off\n");
+  } else if (!identify_reply) {
+    std::printf("  sent at t = %.3f s: NO REPLY within 120 s\n",
+                1e-9 * static_cast<double>(window_start));
+  } else {
+    const auto& r = identify_reply->reply;
+    std::printf(
+        "  \"identify\" {actuator L00, latest 1} sent at t = %.3f s, reply after %.1f ms: "
+        "status %d%s%s\n",
+        1e-9 * static_cast<double>(window_start),
+        1e-6 * static_cast<double>(window_end - window_start), r.status,
+        r.error.empty() ? "" : ", error: ", r.error.c_str());
+    if (r.status == flexid::rpc_reply_t::kOk) {
+      const auto j = nlohmann::json::parse(r.result_json, nullptr, false);
+      if (j.is_object())
+        std::printf("  model version %s, trials %s, fit %s\n",
+                    j.value("version", nlohmann::json()).dump().c_str(),
+                    j.value("trials", nlohmann::json()).dump().c_str(),
+                    j.value("fit", nlohmann::json()).dump().c_str());
+    }
+    if (model_swapped_at_k >= 0)
+      std::printf("  first L00 prediction with the new model: sample %" PRId64 " (t = %.3f s)\n",
+                  model_swapped_at_k, static_cast<double>(model_swapped_at_k) / plan.rate_hz);
+  }
+
+  std::printf("\n== per second of the run (by publish time) ==\n");
+  std::printf("  %4s %8s %8s %8s %9s %9s %9s %9s %9s\n", "s", "defl", "not_in_db", "no_pred",
+              "ext_p50", "ext_p99", "ext_max", "s2s_p99", "s2s_max");
+  for (size_t sec = 0; sec < seconds; ++sec) {
+    if (published_by_s[sec] == 0) continue;
+    const Stats e = Summarise(ext_by_s[sec]), s = Summarise(s2s_by_s[sec]);
+    const auto sec_ns = static_cast<int64_t>(sec) * 1'000'000'000;
+    const bool ident = identify && window_end >= sec_ns && window_start < sec_ns + 1'000'000'000;
+    std::printf("  %4zu %8" PRId64 " %8" PRId64 " %8" PRId64 " %9s %9s %9s %9s %9s%s\n", sec,
+                published_by_s[sec], missing_by_s[sec], nopred_by_s[sec], Ms(e.p50).c_str(),
+                Ms(e.p99).c_str(), Ms(e.max).c_str(), Ms(s.p99).c_str(), Ms(s.max).c_str(),
+                ident ? "  identification" : "");
+  }
+
+  std::printf("\n== CPU by thread during the run (s) ==\n");
+  std::map<pid_t, std::string> labels;
+  {
+    // The daemon's threads other than its loop, in the order daemon.cc starts them.
+    const char* order[] = {"sample writer", "LCM receive", "identification worker"};
+    size_t n = 0;
+    for (const auto& [tid, t] : threads_end) {
+      if (threads_before_daemon.count(tid) || t.name != "flexidd") continue;
+      labels[tid] = n < 3 ? order[n] : "started by the daemon";
+      ++n;
+    }
+    labels[daemon_loop_tid] = "event loop";
+    for (const auto& [tid, t] : threads_end)
+      if (t.name == "bench-sub") labels[tid] = tid == subscriber_tid ? "dispatch" : "LCM receive";
+  }
+  for (const auto& [tid, t] : threads_end) {
+    const auto it = threads_start.find(tid);
+    const int64_t before = it != threads_start.end() ? it->second.cpu_ns : 0;
+    std::printf("  %-14s %-22s tid %-7d %7.3f\n", t.name.c_str(),
+                labels.count(tid) ? labels[tid].c_str() : "", tid,
+                1e-9 * static_cast<double>(t.cpu_ns - before));
+  }
+  std::printf("  (bench-pub, the publisher, has exited; its share is in the process total)\n");
+
+  std::printf("\n== trials in the database ==\n");
+  std::printf("  %5s %-4s %-10s %8s   published deflections in its span\n", "id", "act.", "state",
+              "samples");
+  for (auto it = trials.rbegin(); it != trials.rend(); ++it) {
+    const auto i = ActuatorIndex(it->actuator_id, plan.actuators);
+    int64_t expected = 0;
+    if (i) {
+      for (int64_t k = 0; k < plan.samples; ++k) {
+        const int64_t u = plan.Utime(k);
+        if (u >= it->start_utime && (it->end_utime == 0 || u <= it->end_utime) &&
+            pub[plan.Slot(*i, k)] != kUnset)
+          ++expected;
+      }
+    }
+    std::printf("  %5" PRId64 " %-4s %-10s %8" PRId64 "   %" PRId64 "\n", it->id,
+                it->actuator_id.c_str(), flexid::storage::TrialStateName(it->state), it->samples,
+                expected);
+  }
+
+  if (opt.keep) {
+    std::printf("\ndatabase kept: %s\n", database.c_str());
+  } else {
+    std::error_code ignored;
+    fs::remove_all(dir, ignored);
+  }
+  return 0;
+}
