@@ -50,6 +50,7 @@
 #include <condition_variable>
 #include <cstdio>
 #include <cstdlib>
+#include <ctime>
 #include <filesystem>
 #include <flexid/deflection_sample_t.hpp>
 #include <flexid/prediction_t.hpp>
@@ -83,7 +84,7 @@ using flexid::daemon::Counters;
 
 constexpr int64_t kUnset = INT64_MIN;
 constexpr int64_t kBaseUtime = 1'700'000'000'000'000;  // message time of sample 0
-constexpr double kHighV = 5.0;                         // square wave 0 / 5 V, duty 0.5
+constexpr double kHighV = 5.0;  // square wave 0 / 5 V, duty 0.5, first half period at 0 V
 constexpr double kGainMmPerV = 0.35, kTauS = 0.4, kDeadTimeS = 0.05, kNoiseMm = 0.003;
 constexpr const char* kClientId = "load";
 
@@ -177,7 +178,7 @@ struct Plan {
     if (k < 0) return 0.0;
     const double t = static_cast<double>(k) / rate_hz +
                      period_s * static_cast<double>(actuator) / static_cast<double>(actuators);
-    return std::fmod(t, period_s) < 0.5 * period_s ? kHighV : 0.0;
+    return std::fmod(t, period_s) < 0.5 * period_s ? 0.0 : kHighV;  // L00 starts at rest
   }
   size_t Slot(int actuator, int64_t k) const {
     return static_cast<size_t>(actuator) * static_cast<size_t>(samples) + static_cast<size_t>(k);
@@ -212,6 +213,7 @@ pid_t ThreadId() { return static_cast<pid_t>(::syscall(SYS_gettid)); }
 struct PublisherReport {
   int64_t ticks = 0, late_ticks = 0, publish_failures = 0;
   int64_t max_lateness_ns = 0, sum_lateness_ns = 0, max_tick_ns = 0;
+  int64_t cpu_ns = 0;  // of the publisher thread
   Clock::time_point end;
 };
 
@@ -275,6 +277,9 @@ class Publisher {
     report_.end = Clock::now();
     for (int i = 0; i < plan_.actuators; ++i)
       Control(i, flexid::trial_control_t::kStop, plan_.Utime(plan_.samples - 1) + 1, "");
+    timespec cpu{};
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &cpu);
+    report_.cpu_ns = static_cast<int64_t>(cpu.tv_sec) * 1'000'000'000 + cpu.tv_nsec;
   }
 
   const PublisherReport& report() const { return report_; }
@@ -641,6 +646,11 @@ int main(int argc, char** argv) {
   plan.period_s = opt.period_s;
   plan.samples = static_cast<int64_t>(std::llround(opt.seconds * opt.rate_hz));
   const bool identify = opt.identify_at > 0;
+  if (identify && opt.identify_at - 1 < 0.5 * opt.period_s + 1)
+    std::printf(
+        "note: L00's first trial (0 .. %g s) has at most one voltage step at %g s; the "
+        "identification may find no excitation (use --identify-at > %g)\n",
+        opt.identify_at - 1, 0.5 * opt.period_s, 0.5 * opt.period_s + 2);
   if (identify)
     plan.restart_k = static_cast<int64_t>(std::llround((opt.identify_at - 1) * opt.rate_hz));
 
@@ -731,18 +741,19 @@ int main(int argc, char** argv) {
   Counters status;
   bool drained = false;
   const Clock::time_point drain_start = Clock::now();
-  int64_t last_received = -1;
+  int64_t last_accepted = -1;
   while (Clock::now() - drain_start < std::chrono::seconds(30)) {
     std::this_thread::sleep_for(std::chrono::milliseconds(200));
     const auto r = subscriber.Call("status", nlohmann::json::object(), std::chrono::seconds(5));
     if (!r || r->reply.status != flexid::rpc_reply_t::kOk) continue;
     const auto j = nlohmann::json::parse(r->reply.result_json);
-    status.messages_received = j.value("messages_received", int64_t{0});
+    status.samples_accepted = j.value("samples_accepted", int64_t{0});
     status.samples_stored = j.value("samples_stored", int64_t{0});
     status.predictions_published = j.value("predictions_published", int64_t{0});
     status.dropped_queue_full = j.value("dropped_queue_full", int64_t{0});
-    const bool stable = status.messages_received == last_received;
-    last_received = status.messages_received;
+    // (messages_received moves with every status request; samples_accepted does not)
+    const bool stable = status.samples_accepted == last_accepted;
+    last_accepted = status.samples_accepted;
     if (stable &&
         status.samples_stored >= status.predictions_published - status.dropped_queue_full) {
       drained = true;
@@ -1007,7 +1018,8 @@ int main(int argc, char** argv) {
                 labels.count(tid) ? labels[tid].c_str() : "", tid,
                 1e-9 * static_cast<double>(t.cpu_ns - before));
   }
-  std::printf("  (bench-pub, the publisher, has exited; its share is in the process total)\n");
+  std::printf("  %-14s %-22s %-11s %7.3f\n", "bench-pub", "publisher (whole life)", "",
+              1e-9 * static_cast<double>(pr.cpu_ns));
 
   std::printf("\n== trials in the database ==\n");
   std::printf("  %5s %-4s %-10s %8s   published deflections in its span\n", "id", "act.", "state",

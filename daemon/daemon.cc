@@ -411,6 +411,26 @@ struct Daemon::Impl {
     }
   }
 
+  // Tells the bus that a new model is active: an info alert of kind "model_changed".
+  void AnnounceModel(ActuatorState* state, const storage::ModelRecord& record) {
+    const nlohmann::json fit = nlohmann::json::parse(record.fit_json, nullptr, false);
+    Alert alert;
+    alert.kind = "model_changed";
+    alert.severity = 0;
+    alert.start_utime = alert.end_utime =
+        state->deflection_utime != kNoTime ? state->deflection_utime : 0;
+    alert.text =
+        state->info.id + ": model version " + std::to_string(record.version) + " is active";
+    if (fit.is_object() && fit.contains("fit_percent") && fit["fit_percent"].is_number()) {
+      char figures[96];
+      std::snprintf(figures, sizeof figures,
+                    " (fit %.1f %%, RMSE %.3g mm on trials it was identified from)",
+                    fit["fit_percent"].get<double>(), fit.value("rmse_mm", 0.0));
+      alert.text += figures;
+    }
+    Raise(state, {alert});
+  }
+
   // ---------------------------------------------------------------------------------------
   // RPC
   // ---------------------------------------------------------------------------------------
@@ -489,7 +509,10 @@ struct Daemon::Impl {
         continue;
       }
       auto it = actuators.find(result.actuator_id);
-      if (it != actuators.end()) LoadModel(&it->second, *result.model);  // hot swap
+      if (it != actuators.end()) {
+        LoadModel(&it->second, *result.model);  // hot swap
+        AnnounceModel(&it->second, *result.model);
+      }
       nlohmann::json out = ModelSummary(*result.model);
       out["model"] = nlohmann::json::parse(result.model->model_json);
       Reply(result.request, {flexid::rpc_reply_t::kOk, out, "", false});

@@ -156,6 +156,11 @@ TEST_F(DaemonEndToEnd, RecordsIdentifiesPredictsAndFlagsBackRelaxation) {
   const auto result = nlohmann::json::parse(reply->result_json);
   EXPECT_EQ(result["version"], 1);
   EXPECT_EQ(result["model"]["kind"], "ts_fuzzy");
+  listener_->Pump(300ms);
+  bool announced = false;
+  for (const auto& a : listener_->alerts)
+    announced = announced || (a.kind == "model_changed" && a.severity == 0);
+  EXPECT_TRUE(announced) << "the new model was not announced on FLEXID/ALERT";
 
   // A fresh 2 V trial: the predictions track the measurement.
   listener_->predictions.clear();
