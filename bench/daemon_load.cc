@@ -96,6 +96,8 @@ struct Options {
   double rate_hz = 500;
   double identify_at = 10;    // <= 0: no identification
   double period_s = 4;        // square-wave period
+  double first_trial_s = 22;  // L00's first trial, identified at identify_at (message time)
+  double history_speed = 8;   // L00's history before t0 goes this much faster than real time
   int64_t recv_buf_size = 0;  // LCM udpm recv_buf_size= (0: LCM's default, the kernel's)
   bool tap_deflections = true;
   std::string log_level = "warn";
@@ -105,7 +107,8 @@ struct Options {
 [[noreturn]] void Usage(const std::string& problem) {
   std::fprintf(stderr,
                "daemon_load: %s\nusage: daemon_load [--seconds S] [--actuators N] [--rate-hz R] "
-               "[--identify-at S] [--period-s S] [--recv-buf-size BYTES] [--tap-deflections 0|1] "
+               "[--identify-at S] [--period-s S] [--first-trial-s S] [--recv-buf-size BYTES] "
+               "[--tap-deflections 0|1] "
                "[--log-level LEVEL] [--keep]\n",
                problem.c_str());
   std::exit(2);
@@ -139,6 +142,8 @@ Options ParseOptions(int argc, char** argv) {
       o.identify_at = Number(flag, value);
     else if (flag == "--period-s")
       o.period_s = Number(flag, value);
+    else if (flag == "--first-trial-s")
+      o.first_trial_s = Number(flag, value);
     else if (flag == "--recv-buf-size")
       o.recv_buf_size = static_cast<int64_t>(Number(flag, value));
     else if (flag == "--tap-deflections")
@@ -152,6 +157,7 @@ Options ParseOptions(int argc, char** argv) {
   if (o.actuators < 1 || o.actuators > 100) Usage("--actuators must be 1..100");
   if (o.rate_hz < 1 || o.rate_hz > 10000) Usage("--rate-hz must be 1..10000");
   if (o.period_s <= 0) Usage("--period-s must be positive");
+  if (o.first_trial_s < 0 || o.first_trial_s > 3600) Usage("--first-trial-s must be 0..3600");
   if (o.recv_buf_size < 0) Usage("--recv-buf-size must be >= 0");
   if (o.identify_at > 0 && (o.identify_at < 2 || o.identify_at > o.seconds - 0.5))
     Usage("--identify-at must be 0 (off) or in [2, seconds - 0.5]");
@@ -160,30 +166,40 @@ Options ParseOptions(int argc, char** argv) {
 
 // --- the synthetic rig -----------------------------------------------------------------
 
+// Sample k of an actuator is at message time Utime(k); k = 0 is published at t0 and the
+// run has `samples` ticks. L00 alone also has `history` samples before it (k < 0),
+// published faster than real time before t0, so that its first trial is long enough to be
+// identified.
 struct Plan {
   int actuators = 0;
-  int64_t samples = 0;  // per actuator
+  int64_t samples = 0;  // per actuator, from t0 on
+  int64_t history = 0;  // L00's samples before t0
   double rate_hz = 0, period_s = 0;
   int64_t restart_k = -1;  // tick at which L00's trial is stopped and restarted (-1: never)
+
+  int64_t FirstK(int actuator) const { return actuator == 0 ? -history : 0; }
 
   int64_t Utime(int64_t k) const {
     return kBaseUtime + std::llround(static_cast<double>(k) * 1e6 / rate_hz);
   }
   std::optional<int64_t> Index(int64_t utime) const {
     const int64_t k = std::llround(static_cast<double>(utime - kBaseUtime) * rate_hz / 1e6);
-    if (k < 0 || k >= samples || Utime(k) != utime) return std::nullopt;
+    if (k < -history || k >= samples || Utime(k) != utime) return std::nullopt;
     return k;
   }
   double Voltage(int actuator, int64_t k) const {
-    if (k < 0) return 0.0;
     const double t = static_cast<double>(k) / rate_hz +
                      period_s * static_cast<double>(actuator) / static_cast<double>(actuators);
-    return std::fmod(t, period_s) < 0.5 * period_s ? 0.0 : kHighV;  // L00 starts at rest
+    const double phase = std::fmod(std::fmod(t, period_s) + period_s, period_s);
+    return phase < 0.5 * period_s ? 0.0 : kHighV;  // L00's run starts at rest
   }
   size_t Slot(int actuator, int64_t k) const {
-    return static_cast<size_t>(actuator) * static_cast<size_t>(samples) + static_cast<size_t>(k);
+    return static_cast<size_t>(actuator) * static_cast<size_t>(history + samples) +
+           static_cast<size_t>(k + history);
   }
-  size_t Slots() const { return static_cast<size_t>(actuators) * static_cast<size_t>(samples); }
+  size_t Slots() const {
+    return static_cast<size_t>(actuators) * static_cast<size_t>(history + samples);
+  }
 };
 
 std::string ActuatorId(int i) {
@@ -213,73 +229,79 @@ pid_t ThreadId() { return static_cast<pid_t>(::syscall(SYS_gettid)); }
 struct PublisherReport {
   int64_t ticks = 0, late_ticks = 0, publish_failures = 0;
   int64_t max_lateness_ns = 0, sum_lateness_ns = 0, max_tick_ns = 0;
-  int64_t cpu_ns = 0;  // of the publisher thread
-  Clock::time_point end;
+  int64_t worst_tick = -1;         // the tick that started latest
+  std::vector<int64_t> late_by_s;  // ticks later than one period, per second of the run
+  int64_t cpu_ns = 0;              // of the publisher thread, from t0 to the last tick
+  Clock::time_point end;           // after the last tick
 };
 
 class Publisher {
  public:
-  Publisher(const Plan& plan, const std::string& url, Clock::time_point t0)
+  // L00's history is published from history_start on, history_speed times faster than
+  // real time; the run's tick k at t0 + k / rate.
+  Publisher(const Plan& plan, const std::string& url, Clock::time_point history_start,
+            double history_speed, Clock::time_point t0)
       : plan_(plan),
         lcm_(url),
+        history_start_(history_start),
+        history_speed_(history_speed),
         t0_(t0),
         publish_ns_(plan.Slots(), kUnset),
-        deflection_mm_(plan.Slots(), NAN) {}
+        deflection_mm_(plan.Slots(), NAN),
+        state_(static_cast<size_t>(plan.actuators), 0.0),
+        dead_(static_cast<int64_t>(std::llround(kDeadTimeS * plan.rate_hz))),
+        a_(std::exp(-1.0 / (plan.rate_hz * kTauS))) {
+    for (int i = 0; i < plan_.actuators; ++i) {
+      ids_.push_back(ActuatorId(i));
+      voltage_channel_.push_back("FLEXID/" + ids_.back() + "/VOLTAGE");
+      deflection_channel_.push_back("FLEXID/" + ids_.back() + "/DEFLECTION");
+    }
+    report_.late_by_s.assign(
+        static_cast<size_t>(static_cast<double>(plan.samples) / plan.rate_hz) + 2, 0);
+  }
   bool good() { return lcm_.good(); }
 
   void Run() {
     NameThread("bench-pub");
     for (int i = 0; i < plan_.actuators; ++i)
-      Control(i, flexid::trial_control_t::kStart, plan_.Utime(0) - 1, "daemon_load");
-    std::mt19937_64 random(42);
-    std::normal_distribution<double> noise(0.0, kNoiseMm);
-    const double a = std::exp(-1.0 / (plan_.rate_hz * kTauS));
-    const auto dead = static_cast<int64_t>(std::llround(kDeadTimeS * plan_.rate_hz));
-    std::vector<double> state(static_cast<size_t>(plan_.actuators), 0.0);
-    flexid::voltage_sample_t v;
-    flexid::deflection_sample_t d;
-    std::vector<std::string> voltage_channel, deflection_channel, ids;
-    for (int i = 0; i < plan_.actuators; ++i) {
-      ids.push_back(ActuatorId(i));
-      voltage_channel.push_back("FLEXID/" + ids.back() + "/VOLTAGE");
-      deflection_channel.push_back("FLEXID/" + ids.back() + "/DEFLECTION");
+      Control(i, flexid::trial_control_t::kStart, plan_.Utime(plan_.FirstK(i)) - 1, "daemon_load");
+    for (int64_t k = -plan_.history; k < 0; ++k) {
+      std::this_thread::sleep_until(history_start_ + std::chrono::nanoseconds(std::llround(
+                                                         static_cast<double>(k + plan_.history) *
+                                                         1e9 / (plan_.rate_hz * history_speed_))));
+      PublishSample(0, k);
     }
+    std::this_thread::sleep_until(t0_);
+    const int64_t cpu_start = ThreadCpuNs();
+    const double period_ns = 1e9 / plan_.rate_hz;
     for (int64_t k = 0; k < plan_.samples; ++k) {
       const Clock::time_point due =
-          t0_ +
-          std::chrono::nanoseconds(std::llround(static_cast<double>(k) * 1e9 / plan_.rate_hz));
+          t0_ + std::chrono::nanoseconds(std::llround(static_cast<double>(k) * period_ns));
       std::this_thread::sleep_until(due);
       const Clock::time_point start = Clock::now();
       const int64_t lateness = Since(due, start);
-      report_.max_lateness_ns = std::max(report_.max_lateness_ns, lateness);
+      if (lateness > report_.max_lateness_ns) {
+        report_.max_lateness_ns = lateness;
+        report_.worst_tick = k;
+      }
       report_.sum_lateness_ns += lateness;
-      if (static_cast<double>(lateness) > 1e9 / plan_.rate_hz) ++report_.late_ticks;
-      const int64_t utime = plan_.Utime(k);
+      if (static_cast<double>(lateness) > period_ns) {
+        ++report_.late_ticks;
+        ++report_.late_by_s[std::min(report_.late_by_s.size() - 1,
+                                     static_cast<size_t>(static_cast<double>(k) / plan_.rate_hz))];
+      }
       if (k == plan_.restart_k) {
-        Control(0, flexid::trial_control_t::kStop, utime - 1, "");
-        Control(0, flexid::trial_control_t::kStart, utime, "daemon_load second trial");
+        Control(0, flexid::trial_control_t::kStop, plan_.Utime(k) - 1, "");
+        Control(0, flexid::trial_control_t::kStart, plan_.Utime(k), "daemon_load second trial");
       }
-      for (int i = 0; i < plan_.actuators; ++i) {
-        const size_t s = static_cast<size_t>(i);
-        v.utime = d.utime = utime;
-        v.actuator_id = d.actuator_id = ids[s];
-        v.voltage_V = plan_.Voltage(i, k);
-        state[s] = a * state[s] + (1.0 - a) * kGainMmPerV * plan_.Voltage(i, k - dead);
-        d.deflection_mm = state[s] + noise(random);
-        if (lcm_.publish(voltage_channel[s], &v) != 0) ++report_.publish_failures;
-        deflection_mm_[plan_.Slot(i, k)] = d.deflection_mm;
-        publish_ns_[plan_.Slot(i, k)] = Since(t0_, Clock::now());
-        if (lcm_.publish(deflection_channel[s], &d) != 0) ++report_.publish_failures;
-      }
+      for (int i = 0; i < plan_.actuators; ++i) PublishSample(i, k);
       report_.max_tick_ns = std::max(report_.max_tick_ns, Since(start, Clock::now()));
       ++report_.ticks;
     }
     report_.end = Clock::now();
+    report_.cpu_ns = ThreadCpuNs() - cpu_start;
     for (int i = 0; i < plan_.actuators; ++i)
       Control(i, flexid::trial_control_t::kStop, plan_.Utime(plan_.samples - 1) + 1, "");
-    timespec cpu{};
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &cpu);
-    report_.cpu_ns = static_cast<int64_t>(cpu.tv_sec) * 1'000'000'000 + cpu.tv_nsec;
   }
 
   const PublisherReport& report() const { return report_; }
@@ -287,6 +309,27 @@ class Publisher {
   const std::vector<double>& deflection_mm() const { return deflection_mm_; }
 
  private:
+  static int64_t ThreadCpuNs() {
+    timespec cpu{};
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &cpu);
+    return static_cast<int64_t>(cpu.tv_sec) * 1'000'000'000 + cpu.tv_nsec;
+  }
+
+  // The voltage, then the deflection (first-order lag with dead time, plus noise).
+  void PublishSample(int i, int64_t k) {
+    const size_t s = static_cast<size_t>(i);
+    voltage_.utime = deflection_.utime = plan_.Utime(k);
+    voltage_.actuator_id = deflection_.actuator_id = ids_[s];
+    voltage_.voltage_V = plan_.Voltage(i, k);
+    const double driving = k - dead_ >= plan_.FirstK(i) ? plan_.Voltage(i, k - dead_) : 0.0;
+    state_[s] = a_ * state_[s] + (1.0 - a_) * kGainMmPerV * driving;
+    deflection_.deflection_mm = state_[s] + noise_(random_);
+    if (lcm_.publish(voltage_channel_[s], &voltage_) != 0) ++report_.publish_failures;
+    deflection_mm_[plan_.Slot(i, k)] = deflection_.deflection_mm;
+    publish_ns_[plan_.Slot(i, k)] = Since(t0_, Clock::now());
+    if (lcm_.publish(deflection_channel_[s], &deflection_) != 0) ++report_.publish_failures;
+  }
+
   void Control(int actuator, int8_t action, int64_t utime, const std::string& protocol) {
     flexid::trial_control_t c;
     c.utime = utime;
@@ -298,9 +341,19 @@ class Publisher {
 
   const Plan plan_;
   lcm::LCM lcm_;
+  const Clock::time_point history_start_;
+  const double history_speed_;
   const Clock::time_point t0_;
-  std::vector<int64_t> publish_ns_;    // per (actuator, k): steady ns since t0, before publish
-  std::vector<double> deflection_mm_;  // per (actuator, k): the value published
+  std::vector<int64_t> publish_ns_;    // per slot: steady ns since t0 just before publish
+  std::vector<double> deflection_mm_;  // per slot: the value published
+  std::vector<double> state_;          // per actuator: the lag's output, mm
+  const int64_t dead_;                 // dead time, samples
+  const double a_;                     // the lag's pole
+  std::mt19937_64 random_{42};
+  std::normal_distribution<double> noise_{0.0, kNoiseMm};
+  flexid::voltage_sample_t voltage_;
+  flexid::deflection_sample_t deflection_;
+  std::vector<std::string> ids_, voltage_channel_, deflection_channel_;
   PublisherReport report_;
 };
 
@@ -580,6 +633,60 @@ std::map<pid_t, ThreadCpu> ThreadCpuTimes() {
   return out;
 }
 
+// Busy and steal time of the whole machine, in USER_HZ ticks (/proc/stat, line "cpu").
+struct MachineCpu {
+  int64_t busy = 0, steal = 0;
+};
+
+MachineCpu ReadMachineCpu() {
+  std::ifstream in("/proc/stat");
+  std::string cpu;
+  int64_t user = 0, nice = 0, system = 0, idle = 0, iowait = 0, irq = 0, softirq = 0, steal = 0;
+  in >> cpu >> user >> nice >> system >> idle >> iowait >> irq >> softirq >> steal;
+  return {user + nice + system + irq + softirq, steal};
+}
+
+// Once a second of the run: how much CPU the machine used, and how much of it was this
+// process (the rest is other processes: on a shared machine they disturb the figures).
+class LoadMonitor {
+ public:
+  void Start(Clock::time_point t0, size_t seconds) {
+    thread_ = std::thread([this, t0, seconds] {
+      NameThread("bench-mon");
+      const double hz = static_cast<double>(sysconf(_SC_CLK_TCK));
+      MachineCpu last = ReadMachineCpu();
+      double last_self = SelfCpuSeconds();
+      for (size_t sec = 1; sec <= seconds && !stop_; ++sec) {
+        std::this_thread::sleep_until(t0 + std::chrono::seconds(sec));
+        const MachineCpu now = ReadMachineCpu();
+        const double self = SelfCpuSeconds();
+        std::lock_guard lock(mutex_);
+        machine_cores_.push_back(static_cast<double>(now.busy - last.busy) / hz);
+        steal_cores_.push_back(static_cast<double>(now.steal - last.steal) / hz);
+        self_cores_.push_back(self - last_self);
+        last = now;
+        last_self = self;
+      }
+    });
+  }
+  void Stop() {
+    stop_ = true;
+    if (thread_.joinable()) thread_.join();
+  }
+  // Per second: cores busy on the machine, of which this process, and steal.
+  std::vector<double> machine_cores_, self_cores_, steal_cores_;
+
+ private:
+  static double SelfCpuSeconds() {
+    timespec t{};
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+    return static_cast<double>(t.tv_sec) + 1e-9 * static_cast<double>(t.tv_nsec);
+  }
+  std::thread thread_;
+  std::atomic<bool> stop_{false};
+  std::mutex mutex_;
+};
+
 double CpuSeconds(const rusage& u) {
   return static_cast<double>(u.ru_utime.tv_sec + u.ru_stime.tv_sec) +
          1e-6 * static_cast<double>(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
@@ -646,13 +753,13 @@ int main(int argc, char** argv) {
   plan.period_s = opt.period_s;
   plan.samples = static_cast<int64_t>(std::llround(opt.seconds * opt.rate_hz));
   const bool identify = opt.identify_at > 0;
-  if (identify && opt.identify_at - 1 < 0.5 * opt.period_s + 1)
-    std::printf(
-        "note: L00's first trial (0 .. %g s) has at most one voltage step at %g s; the "
-        "identification may find no excitation (use --identify-at > %g)\n",
-        opt.identify_at - 1, 0.5 * opt.period_s, 0.5 * opt.period_s + 2);
-  if (identify)
+  if (identify) {
     plan.restart_k = static_cast<int64_t>(std::llround((opt.identify_at - 1) * opt.rate_hz));
+    // The identification needs max_delay_s / dt + 50 samples (model/identify.cc) and
+    // the trial must end before the request: L00's first trial gets a history before t0.
+    plan.history = std::max<int64_t>(
+        0, static_cast<int64_t>(std::llround(opt.first_trial_s * opt.rate_hz)) - plan.restart_k);
+  }
 
   std::random_device device;
   const int port = std::uniform_int_distribution<int>(20000, 60000)(device);
@@ -709,22 +816,37 @@ int main(int argc, char** argv) {
     (sockets_before.count(inode) ? bench_inode : daemon_inode) = inode;
   const int64_t rcvbuf_errors_before = UdpRcvbufErrors();
 
-  // Give the daemon's loop a moment, then fix t0 half a second ahead: the publisher sends
-  // the trial starts at once and the first samples at t0.
-  std::this_thread::sleep_for(std::chrono::milliseconds(200));
-  const Clock::time_point t0 = Clock::now() + std::chrono::milliseconds(500);
+  // The publisher sends the trial starts at once, L00's history (if any) from half a
+  // second on, and the run's first tick at t0, half a second after the history.
+  const Clock::time_point history_start = Clock::now() + std::chrono::milliseconds(500);
+  const Clock::time_point t0 =
+      history_start + std::chrono::milliseconds(500) +
+      std::chrono::nanoseconds(std::llround(static_cast<double>(plan.history) * 1e9 /
+                                            (opt.rate_hz * opt.history_speed)));
   subscriber.SetT0(t0);
-  Publisher publisher(plan, url, t0);
+  Publisher publisher(plan, url, history_start, opt.history_speed, t0);
   if (!publisher.good()) {
     std::fprintf(stderr, "daemon_load: the publisher cannot join the bus\n");
     subscriber.Stop();
     return 1;
   }
+  if (plan.history > 0)
+    std::printf("L00: %" PRId64
+                " samples of history before t0 (%g x real time), so that its "
+                "first trial, identified at %g s, holds %" PRId64 " samples (%g s)\n",
+                plan.history, opt.history_speed, opt.identify_at, plan.history + plan.restart_k,
+                static_cast<double>(plan.history + plan.restart_k) / opt.rate_hz);
+  std::fflush(stdout);
+  std::thread publisher_thread([&] { publisher.Run(); });
+  // Figures of the run are taken from t0 on (the history is warm-up).
+  std::this_thread::sleep_until(t0);
   rusage usage_start{};
   getrusage(RUSAGE_SELF, &usage_start);
   const auto threads_start = ThreadCpuTimes();
-  const Clock::time_point wall_start = Clock::now();
-  std::thread publisher_thread([&] { publisher.Run(); });
+  const Clock::time_point wall_start = t0;
+  const MachineCpu machine_start = ReadMachineCpu();
+  LoadMonitor monitor;
+  monitor.Start(t0, static_cast<size_t>(std::ceil(opt.seconds)));
 
   // Identification of L00 on its first trial, while the load goes on.
   std::optional<ReplyRecord> identify_reply;
@@ -736,6 +858,8 @@ int main(int argc, char** argv) {
                                      std::chrono::seconds(120), &identify_sent);
   }
   publisher_thread.join();
+  const MachineCpu machine_end = ReadMachineCpu();
+  monitor.Stop();
 
   // Drain: until the daemon has stored every deflection it accepted (all are in trials).
   Counters status;
@@ -814,17 +938,29 @@ int main(int argc, char** argv) {
       identify_reply ? Since(t0, identify_reply->received) : (identify ? INT64_MAX : kUnset);
   auto in_window = [&](int64_t ns) { return identify && ns >= window_start && ns <= window_end; };
   std::vector<double> ext_all, ext_out, ext_in, s2s_all, s2s_out, s2s_in;
+  struct Point {
+    int64_t publish_ns;
+    double ext_us, s2s_us;  // s2s NAN when a kernel stamp is missing
+  };
+  std::vector<Point> points;
   const auto seconds = static_cast<size_t>(std::ceil(opt.seconds)) + 1;
   std::vector<std::vector<double>> ext_by_s(seconds), s2s_by_s(seconds);
   std::vector<int64_t> published_by_s(seconds, 0), missing_by_s(seconds, 0),
       nopred_by_s(seconds, 0);
   std::vector<int64_t> stored_by_actuator(static_cast<size_t>(plan.actuators), 0);
-  int64_t published = 0, predictions_matched = 0, model_swapped_at_k = -1;
+  int64_t published = 0, published_history = 0, history_not_in_db = 0, predictions_matched = 0,
+          model_swapped_at_k = -1;
   for (int i = 0; i < plan.actuators; ++i) {
-    for (int64_t k = 0; k < plan.samples; ++k) {
+    for (int64_t k = plan.FirstK(i); k < plan.samples; ++k) {
       const size_t s = plan.Slot(i, k);
       if (pub[s] == kUnset) continue;
       ++published;
+      if (k < 0) {  // L00's history: counted, not timed
+        ++published_history;
+        history_not_in_db += !stored[s];
+        predictions_matched += rx[s] != kUnset;
+        continue;
+      }
       const size_t sec = std::min(seconds - 1, static_cast<size_t>(pub[s] / 1'000'000'000));
       ++published_by_s[sec];
       if (stored[s]) {
@@ -840,6 +976,9 @@ int main(int argc, char** argv) {
       if (i == 0 && model_swapped_at_k < 0 && subscriber.model_version()[s] > 0)
         model_swapped_at_k = k;
       const double ext_us = 1e-3 * static_cast<double>(rx[s] - pub[s]);
+      points.push_back(
+          {pub[s], ext_us,
+           dk[s] != kUnset && pk[s] != kUnset ? static_cast<double>(pk[s] - dk[s]) : NAN});
       ext_all.push_back(ext_us);
       (in_window(pub[s]) ? ext_in : ext_out).push_back(ext_us);
       ext_by_s[sec].push_back(ext_us);
@@ -881,11 +1020,16 @@ int main(int argc, char** argv) {
                : 0.0,
       1e-6 * static_cast<double>(pr.max_lateness_ns), 1e3 / plan.rate_hz, pr.late_ticks,
       pr.late_ticks ? "  <-- FELL BEHIND (then caught up in a burst)" : "");
+  if (pr.worst_tick >= 0)
+    std::printf("  the latest tick was at t = %.3f s\n",
+                static_cast<double>(pr.worst_tick) / plan.rate_hz);
   std::printf("  longest tick (publishing its messages): %.3f ms; publish failures: %" PRId64 "\n",
               1e-6 * static_cast<double>(pr.max_tick_ns), pr.publish_failures);
 
   std::printf("\n== counts ==                                         measured   target\n");
-  std::printf("  published deflections                          %10" PRId64 "\n", published);
+  std::printf("  published deflections                          %10" PRId64 "   (%" PRId64
+              " of them L00's history before t0)\n",
+              published, published_history);
   std::printf("  published voltages                             %10" PRId64 "\n", published);
   std::printf("  delivered deflections (daemon accepted;        %10" PRId64 "\n", delivered);
   std::printf("    = predictions_published)\n");
@@ -929,6 +1073,18 @@ int main(int argc, char** argv) {
       "  wall time %.3f s (publishing); CPU time of the process %.3f s = %.0f%% of one "
       "core (2 cores here)\n",
       wall_s, cpu_s, wall_s > 0 ? 100.0 * cpu_s / wall_s : 0.0);
+  {
+    const double hz = static_cast<double>(sysconf(_SC_CLK_TCK));
+    const double machine_s = static_cast<double>(machine_end.busy - machine_start.busy) / hz;
+    const double steal_s = static_cast<double>(machine_end.steal - machine_start.steal) / hz;
+    std::printf(
+        "  machine: %.2f cores busy on average, of which other processes %.2f (steal %.2f)%s\n",
+        wall_s > 0 ? machine_s / wall_s : 0.0,
+        wall_s > 0 ? std::max(0.0, machine_s - cpu_s) / wall_s : 0.0,
+        wall_s > 0 ? steal_s / wall_s : 0.0,
+        machine_s - cpu_s > 0.1 * wall_s ? "  <-- SHARED MACHINE: other load disturbs the latency"
+                                         : "");
+  }
 
   std::printf(
       "\n== latency, deflection -> its prediction (ms) ==   target: p99 < 1 ms, also "
@@ -982,19 +1138,73 @@ int main(int argc, char** argv) {
                   model_swapped_at_k, static_cast<double>(model_swapped_at_k) / plan.rate_hz);
   }
 
-  std::printf("\n== per second of the run (by publish time) ==\n");
-  std::printf("  %4s %8s %8s %8s %9s %9s %9s %9s %9s\n", "s", "defl", "not_in_db", "no_pred",
-              "ext_p50", "ext_p99", "ext_max", "s2s_p99", "s2s_max");
+  // Deflections published in a window after each event of the run: what the daemon did then
+  // shows in their latency.
+  {
+    struct Event {
+      std::string what;
+      int64_t from_ns, to_ns;
+    };
+    std::vector<Event> events;
+    if (plan.restart_k >= 0) {
+      const auto at = static_cast<int64_t>(
+          std::llround(static_cast<double>(plan.restart_k) * 1e9 / plan.rate_hz));
+      events.push_back({"L00 trial stop + start, +100 ms", at, at + 100'000'000});
+    }
+    if (identify) {
+      events.push_back({"identify request, +100 ms", window_start, window_start + 100'000'000});
+      if (identify_reply) {
+        events.push_back(
+            {"identification running (rest)", window_start + 100'000'000, window_end - 20'000'000});
+        events.push_back({"identify reply -20 ms .. +100 ms", window_end - 20'000'000,
+                          window_end + 100'000'000});
+      }
+    }
+    if (!events.empty()) {
+      std::printf("\n== latency around events (ms) ==\n");
+      std::printf("  %-34s %8s %8s %8s %8s %8s %9s %8s\n", "", "n", "p50", "p90", "p99", "p99.9",
+                  "max", ">1ms");
+      for (const Event& e : events) {
+        std::vector<double> ext, s2s;
+        for (const Point& p : points) {
+          if (p.publish_ns < e.from_ns || p.publish_ns > e.to_ns) continue;
+          ext.push_back(p.ext_us);
+          if (std::isfinite(p.s2s_us)) s2s.push_back(p.s2s_us);
+        }
+        PrintStatsRow(("ext: " + e.what).c_str(), Summarise(ext));
+        if (opt.tap_deflections) PrintStatsRow(("s2s: " + e.what).c_str(), Summarise(s2s));
+      }
+    }
+  }
+
+  std::printf("\n== per second of the run (by publish time of the deflection) ==\n");
+  std::printf("  %4s %6s %5s %6s %7s %8s %8s %8s %8s %8s %8s %6s %6s\n", "s", "defl", "late",
+              "not_db", "no_pred", "ext_p50", "ext_p99", "ext_max", "s2s_p50", "s2s_p99", "s2s_max",
+              "ours", "others");
   for (size_t sec = 0; sec < seconds; ++sec) {
     if (published_by_s[sec] == 0) continue;
     const Stats e = Summarise(ext_by_s[sec]), s = Summarise(s2s_by_s[sec]);
     const auto sec_ns = static_cast<int64_t>(sec) * 1'000'000'000;
     const bool ident = identify && window_end >= sec_ns && window_start < sec_ns + 1'000'000'000;
-    std::printf("  %4zu %8" PRId64 " %8" PRId64 " %8" PRId64 " %9s %9s %9s %9s %9s%s\n", sec,
-                published_by_s[sec], missing_by_s[sec], nopred_by_s[sec], Ms(e.p50).c_str(),
-                Ms(e.p99).c_str(), Ms(e.max).c_str(), Ms(s.p99).c_str(), Ms(s.max).c_str(),
-                ident ? "  identification" : "");
+    const bool restart =
+        plan.restart_k >= 0 &&
+        static_cast<size_t>(static_cast<double>(plan.restart_k) / plan.rate_hz) == sec;
+    const bool sampled = sec < monitor.self_cores_.size();
+    const double ours = sampled ? monitor.self_cores_[sec] : NAN;
+    const double others = sampled ? std::max(0.0, monitor.machine_cores_[sec] - ours) : NAN;
+    std::printf("  %4zu %6" PRId64 " %5" PRId64 " %6" PRId64 " %7" PRId64
+                " %8s %8s %8s %8s %8s %8s %6.2f %6.2f%s%s\n",
+                sec, published_by_s[sec], sec < pr.late_by_s.size() ? pr.late_by_s[sec] : 0,
+                missing_by_s[sec], nopred_by_s[sec], Ms(e.p50).c_str(), Ms(e.p99).c_str(),
+                Ms(e.max).c_str(), Ms(s.p50).c_str(), Ms(s.p99).c_str(), Ms(s.max).c_str(), ours,
+                others, restart ? "  L00 trial restart" : "", ident ? "  identification" : "");
   }
+  std::printf(
+      "  ours / others: cores busy with this process / with other processes on the machine "
+      "(2 cores; /proc/stat)\n");
+  std::printf(
+      "  late: publisher ticks that started more than one period late; not_db: deflections "
+      "not in SQLite; no_pred: no prediction received\n");
 
   std::printf("\n== CPU by thread during the run (s) ==\n");
   std::map<pid_t, std::string> labels;
@@ -1018,7 +1228,7 @@ int main(int argc, char** argv) {
                 labels.count(tid) ? labels[tid].c_str() : "", tid,
                 1e-9 * static_cast<double>(t.cpu_ns - before));
   }
-  std::printf("  %-14s %-22s %-11s %7.3f\n", "bench-pub", "publisher (whole life)", "",
+  std::printf("  %-14s %-22s %-11s %7.3f\n", "bench-pub", "publisher", "",
               1e-9 * static_cast<double>(pr.cpu_ns));
 
   std::printf("\n== trials in the database ==\n");
@@ -1028,7 +1238,7 @@ int main(int argc, char** argv) {
     const auto i = ActuatorIndex(it->actuator_id, plan.actuators);
     int64_t expected = 0;
     if (i) {
-      for (int64_t k = 0; k < plan.samples; ++k) {
+      for (int64_t k = plan.FirstK(*i); k < plan.samples; ++k) {
         const int64_t u = plan.Utime(k);
         if (u >= it->start_utime && (it->end_utime == 0 || u <= it->end_utime) &&
             pub[plan.Slot(*i, k)] != kUnset)

@@ -32,6 +32,7 @@
 
 #include "daemon/rpc.h"
 #include "flexid/version.h"
+#include "lcmtypes/wire_check.h"
 #include "model/identify_ts.h"
 #include "model/model_file.h"
 #include "model/simulate.h"
@@ -124,6 +125,16 @@ struct Daemon::Impl {
         db(storage::Database::Open(config.database)),
         lcm(config.lcm_url) {
     if (!lcm.good()) throw std::runtime_error("cannot join the LCM bus at " + config.lcm_url);
+    // Signals are taken through signalfd in the loop. They are blocked here, before any
+    // thread starts, so that every thread inherits the mask: a SIGTERM delivered to the
+    // writer or the worker would otherwise end the process without flushing.
+    sigset_t signals;
+    sigemptyset(&signals);
+    sigaddset(&signals, SIGTERM);
+    sigaddset(&signals, SIGINT);
+    sigaddset(&signals, SIGHUP);
+    pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+
     const int interrupted = db.MarkRecordingTrialsInterrupted();
     if (interrupted > 0)
       spdlog::warn("trials left recording by an earlier run marked interrupted [count: {}]",
@@ -148,12 +159,6 @@ struct Daemon::Impl {
     lcm.subscribeFunction(p + "/RPC/REQUEST", &Impl::OnRequestThunk, this)->setQueueCapacity(1000);
     lcm.subscribeFunction(p + "/TRIAL", &Impl::OnTrialControlThunk, this)->setQueueCapacity(1000);
 
-    sigset_t signals;
-    sigemptyset(&signals);
-    sigaddset(&signals, SIGTERM);
-    sigaddset(&signals, SIGINT);
-    sigaddset(&signals, SIGHUP);
-    pthread_sigmask(SIG_BLOCK, &signals, nullptr);
     signal_fd = signalfd(-1, &signals, SFD_NONBLOCK | SFD_CLOEXEC);
     wake_fd = eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
     if (signal_fd < 0 || wake_fd < 0)
@@ -235,10 +240,13 @@ struct Daemon::Impl {
     }
   }
 
-  // Decodes a message, rejecting oversized and undecodable ones (counted).
+  // Decodes a message, rejecting oversized, ill-formed and undecodable ones (counted). The
+  // structure is checked before lcm-gen's decoder runs (lcmtypes/wire_check.h).
   template <typename Message>
-  bool Decode(const lcm::ReceiveBuffer& rbuf, Message* message) {
+  bool Decode(const lcm::ReceiveBuffer& rbuf, Message* message,
+              std::initializer_list<wire::Field> layout) {
     if (static_cast<int64_t>(rbuf.data_size) > config.max_message_bytes ||
+        !wire::WellFormed(rbuf.data, rbuf.data_size, layout) ||
         message->decode(rbuf.data, 0, static_cast<int>(rbuf.data_size)) !=
             static_cast<int>(rbuf.data_size)) {
       ++counters.rejected_malformed;
@@ -277,7 +285,7 @@ struct Daemon::Impl {
 
   void OnVoltage(const lcm::ReceiveBuffer& rbuf, const std::string& channel) {
     flexid::voltage_sample_t message;
-    if (!Decode(rbuf, &message)) return;
+    if (!Decode(rbuf, &message, wire::kVoltageSample)) return;
     ActuatorState* state = SampleActuator(channel, message.actuator_id);
     if (!state) return;
     if (!std::isfinite(message.voltage_V)) {
@@ -308,7 +316,7 @@ struct Daemon::Impl {
 
   void OnDeflection(const lcm::ReceiveBuffer& rbuf, const std::string& channel) {
     flexid::deflection_sample_t message;
-    if (!Decode(rbuf, &message)) return;
+    if (!Decode(rbuf, &message, wire::kDeflectionSample)) return;
     ActuatorState* state = SampleActuator(channel, message.actuator_id);
     if (!state) return;
     if (!std::isfinite(message.deflection_mm)) {
@@ -349,7 +357,7 @@ struct Daemon::Impl {
 
   void OnTrialControl(const lcm::ReceiveBuffer& rbuf) {
     flexid::trial_control_t message;
-    if (!Decode(rbuf, &message)) return;
+    if (!Decode(rbuf, &message, wire::kTrialControl)) return;
     if (message.action != flexid::trial_control_t::kStart &&
         message.action != flexid::trial_control_t::kStop) {
       ++counters.rejected_malformed;
@@ -437,7 +445,7 @@ struct Daemon::Impl {
 
   void OnRequest(const lcm::ReceiveBuffer& rbuf) {
     flexid::rpc_request_t request;
-    if (!Decode(rbuf, &request)) return;
+    if (!Decode(rbuf, &request, wire::kRpcRequest)) return;
     RpcContext context{request.request_id, request.client_id};
     RpcOutcome outcome = HandleRequest(request);
     if (outcome.deferred) return;  // identify: answered when the worker finishes
@@ -665,15 +673,6 @@ nlohmann::json AlertJson(const storage::AlertRecord& a) {
           {"text", a.text}};
 }
 
-nlohmann::json FitFiguresJson(const model::FitFigures& fit) {
-  return {{"samples", fit.samples},
-          {"fit_percent", std::isfinite(fit.fit_percent) ? nlohmann::json(fit.fit_percent)
-                                                         : nlohmann::json(nullptr)},
-          {"rmse_mm", fit.rmse_mm},
-          {"whiteness_passed", fit.whiteness.passed},
-          {"input_residual_correlation_passed", fit.cross_correlation.passed}};
-}
-
 // Identification of one actuator on stored trials, on the worker thread with its own
 // connection: samples -> recordings -> T-S model -> a new active model version.
 IdentifyResult RunIdentification(const std::string& database, const std::string& actuator_id,
@@ -707,13 +706,13 @@ IdentifyResult RunIdentification(const std::string& database, const std::string&
     model::ModelDocument doc = estimate.local.size() == 1
                                    ? model::FromTransferFunction(estimate.local[0].estimate.tf)
                                    : model::FromTsModel(estimate.model);
-    doc.extra["fit"] = FitFiguresJson(estimate.fit);
+    doc.extra["fit"] = model::FitFiguresToJson(estimate.fit);
     doc.extra["identified_from_trials"] = trial_ids;
     storage::ModelRecord record;
     record.actuator_id = actuator_id;
     record.created_utime = WallClockUtime();
     record.model_json = model::ModelToJson(doc).dump();
-    nlohmann::json fit = FitFiguresJson(estimate.fit);
+    nlohmann::json fit = model::FitFiguresToJson(estimate.fit);
     fit["levels_V"] = nlohmann::json::array();
     for (const auto& local : estimate.local) fit["levels_V"].push_back(local.level_V);
     record.fit_json = fit.dump();

@@ -1,14 +1,25 @@
 // flexidd [--config FILE] [--db PATH] [--lcm URL]: the flexid lab service. Flags override
 // the file; with no file it runs on the embedded defaults (DESIGN.md).
+#include <pthread.h>
 #include <spdlog/spdlog.h>
 
 #include <CLI/CLI.hpp>
+#include <csignal>
 
 #include "daemon/daemon.h"
 #include "flexid/version.h"
 #include "storage/database.h"
 
 int main(int argc, char** argv) {
+  // SIGTERM, SIGINT and SIGHUP are handled by the event loop (signalfd). Block them before
+  // anything else, so that one arriving during start-up waits for the loop instead of
+  // ending the process.
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGTERM);
+  sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGHUP);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
   CLI::App app{
       "flexidd: records actuator trials from the bus, predicts live, raises alerts, identifies on "
       "demand"};

@@ -46,38 +46,7 @@ constexpr double kDeltaRange = 1e3;
 // -----------------------------------------------------------------------------------------
 
 void CheckSegments(const std::vector<DataSegment>& segments, const GreyBoxOptions& options) {
-  if (segments.empty()) throw InputError("no data to identify from");
-  size_t fitted = 0;
-  double u_min = kInf, u_max = -kInf, dt_max_s = 0.0;
-  for (size_t s = 0; s < segments.size(); ++s) {
-    const DataSegment& seg = segments[s];
-    const std::string where = "segment " + std::to_string(s) + ": ";
-    if (!(seg.dt_s > 0.0) || !std::isfinite(seg.dt_s))
-      throw InputError(where + "sample period must be finite and > 0");
-    if (seg.voltage_V.size() != seg.deflection_mm.size())
-      throw InputError(where + "voltage and deflection differ in length");
-    if (!std::isfinite(seg.initial_voltage_V))
-      throw InputError(where + "initial voltage is not finite");
-    if (seg.fit_begin >= seg.voltage_V.size())
-      throw InputError(where + "nothing to fit after the lead-in");
-    for (size_t k = 0; k < seg.voltage_V.size(); ++k) {
-      if (!std::isfinite(seg.voltage_V[k]) || !std::isfinite(seg.deflection_mm[k]))
-        throw InputError(where + "non-finite value at sample " + std::to_string(k));
-      u_min = std::min(u_min, seg.voltage_V[k]);
-      u_max = std::max(u_max, seg.voltage_V[k]);
-    }
-    fitted += seg.voltage_V.size() - seg.fit_begin;
-    dt_max_s = std::max(dt_max_s, seg.dt_s);
-  }
-  // As identify: 20 samples per free parameter, and the delay range plus 50 samples.
-  const size_t needed =
-      std::max<size_t>(20 * kUnknowns, static_cast<size_t>(options.max_delay_s / dt_max_s) + 50);
-  if (fitted < needed)
-    throw InputError("recording too short: " + std::to_string(fitted) +
-                     " samples to fit, need at least " + std::to_string(needed));
-  if (u_max - u_min == 0.0)
-    throw InputError("voltage is constant at " + std::to_string(u_max) +
-                     " V: no excitation to identify from");
+  ValidateSegments(segments, kUnknowns, options.max_delay_s);  // as identify (identify.h)
 }
 
 // -----------------------------------------------------------------------------------------
@@ -259,35 +228,9 @@ ceres::Solver::Summary Solve(ceres::Problem* problem, int max_iterations) {
 
 FitFigures FitOf(const PhysicalParameters& p, double delay_s, int terms,
                  const std::vector<DataSegment>& segments, int correlation_lags) {
-  std::vector<double> measured, predicted, input;
-  for (const DataSegment& seg : segments) {
-    const std::vector<double> y = Predict(p, delay_s, terms, seg);
-    for (size_t k = seg.fit_begin; k < y.size(); ++k) {
-      measured.push_back(seg.deflection_mm[k]);
-      predicted.push_back(y[k]);
-      input.push_back(seg.voltage_V[k]);
-    }
-  }
-  FitFigures fit;
-  fit.samples = measured.size();
-  fit.fit_percent = FitPercent(measured, predicted);
-  fit.rmse_mm = Rmse(measured, predicted);
-  std::vector<double> residual(measured.size());
-  double residual_spread = 0.0, input_spread = 0.0;
-  for (size_t k = 0; k < residual.size(); ++k) {
-    residual[k] = measured[k] - predicted[k];
-    residual_spread = std::max(residual_spread, std::abs(residual[k] - residual.front()));
-    input_spread = std::max(input_spread, std::abs(input[k] - input.front()));
-  }
-  const int lags = std::min<int>(correlation_lags, static_cast<int>(residual.size() / 4));
-  // The tests need series with non-zero variance: a perfect fit has none, and the input
-  // may be constant after a lead-in.
-  if (lags >= 1 && residual_spread > 0.0) {
-    fit.whiteness = TestWhiteness(residual, lags);
-    if (input_spread > 0.0)
-      fit.cross_correlation = TestInputResidualCorrelation(input, residual, lags);
-  }
-  return fit;
+  return FitOnSegments(
+      segments, [&](const DataSegment& seg) { return Predict(p, delay_s, terms, seg); },
+      correlation_lags);
 }
 
 double HalfWidth95(double variance) {

@@ -25,45 +25,14 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 // Data checks
 // -----------------------------------------------------------------------------------------
 
-double CheckSegments(const std::vector<DataSegment>& segments, const IdentifyOptions& options) {
-  if (segments.empty()) throw InputError("no data to identify from");
+// The sample period shared by all segments (identification needs one grid).
+double CommonSamplePeriod(const std::vector<DataSegment>& segments) {
   const double dt_s = segments.front().dt_s;
-  size_t fitted = 0;
-  double u_min = kInf, u_max = -kInf;
-  for (size_t s = 0; s < segments.size(); ++s) {
-    const DataSegment& seg = segments[s];
-    const std::string where = "segment " + std::to_string(s) + ": ";
-    if (!(seg.dt_s > 0.0) || !std::isfinite(seg.dt_s))
-      throw InputError(where + "sample period must be finite and > 0");
-    if (std::abs(seg.dt_s - dt_s) > 1e-9 * dt_s)
-      throw InputError(where + "sample period " + std::to_string(seg.dt_s) +
-                       " s differs from the first segment's " + std::to_string(dt_s) + " s");
-    if (seg.voltage_V.size() != seg.deflection_mm.size())
-      throw InputError(where + "voltage and deflection differ in length");
-    if (!std::isfinite(seg.initial_voltage_V))
-      throw InputError(where + "initial voltage is not finite");
-    if (seg.fit_begin >= seg.voltage_V.size())
-      throw InputError(where + "nothing to fit after the lead-in");
-    for (size_t k = 0; k < seg.voltage_V.size(); ++k) {
-      if (!std::isfinite(seg.voltage_V[k]) || !std::isfinite(seg.deflection_mm[k]))
-        throw InputError(where + "non-finite value at sample " + std::to_string(k));
-      u_min = std::min(u_min, seg.voltage_V[k]);
-      u_max = std::max(u_max, seg.voltage_V[k]);
-    }
-    // The step from the voltage held before the segment excites it too.
-    u_min = std::min(u_min, seg.initial_voltage_V);
-    u_max = std::max(u_max, seg.initial_voltage_V);
-    fitted += seg.voltage_V.size() - seg.fit_begin;
-  }
-  const size_t parameters = static_cast<size_t>(options.num_zeros + options.num_poles + 2);
-  const size_t needed =
-      std::max<size_t>(20 * parameters, static_cast<size_t>(options.max_delay_s / dt_s) + 50);
-  if (fitted < needed)
-    throw InputError("recording too short: " + std::to_string(fitted) +
-                     " samples to fit, need at least " + std::to_string(needed));
-  if (u_max - u_min == 0.0)
-    throw InputError("voltage is constant at " + std::to_string(u_max) +
-                     " V: no excitation to identify from");
+  for (size_t s = 0; s < segments.size(); ++s)
+    if (std::abs(segments[s].dt_s - dt_s) > 1e-9 * dt_s)
+      throw InputError("segment " + std::to_string(s) + ": sample period " +
+                       std::to_string(segments[s].dt_s) + " s differs from the first segment's " +
+                       std::to_string(dt_s) + " s");
   return dt_s;
 }
 
@@ -755,42 +724,98 @@ bool IdentifyOptions::IsValid(std::string* error) const {
   return true;
 }
 
-FitFigures EvaluateFit(const TransferFunction& tf, const std::vector<DataSegment>& segments,
-                       int correlation_lags) {
+void ValidateSegments(const std::vector<DataSegment>& segments, int parameters,
+                      double max_delay_s) {
+  if (segments.empty()) throw InputError("no data to identify from");
+  size_t fitted = 0;
+  double u_min = kInf, u_max = -kInf, dt_max_s = 0.0;
+  for (size_t s = 0; s < segments.size(); ++s) {
+    const DataSegment& seg = segments[s];
+    const std::string where = "segment " + std::to_string(s) + ": ";
+    if (!(seg.dt_s > 0.0) || !std::isfinite(seg.dt_s))
+      throw InputError(where + "sample period must be finite and > 0");
+    if (seg.voltage_V.size() != seg.deflection_mm.size())
+      throw InputError(where + "voltage and deflection differ in length");
+    if (!std::isfinite(seg.initial_voltage_V))
+      throw InputError(where + "initial voltage is not finite");
+    if (seg.fit_begin >= seg.voltage_V.size())
+      throw InputError(where + "nothing to fit after the lead-in");
+    for (size_t k = 0; k < seg.voltage_V.size(); ++k) {
+      if (!std::isfinite(seg.voltage_V[k]) || !std::isfinite(seg.deflection_mm[k]))
+        throw InputError(where + "non-finite value at sample " + std::to_string(k));
+      u_min = std::min(u_min, seg.voltage_V[k]);
+      u_max = std::max(u_max, seg.voltage_V[k]);
+    }
+    // The step from the voltage held before the segment excites it too.
+    u_min = std::min(u_min, seg.initial_voltage_V);
+    u_max = std::max(u_max, seg.initial_voltage_V);
+    fitted += seg.voltage_V.size() - seg.fit_begin;
+    dt_max_s = std::max(dt_max_s, seg.dt_s);
+  }
+  const size_t needed = std::max<size_t>(20 * static_cast<size_t>(parameters),
+                                         static_cast<size_t>(max_delay_s / dt_max_s) + 50);
+  if (fitted < needed)
+    throw InputError("recording too short: " + std::to_string(fitted) +
+                     " samples to fit, need at least " + std::to_string(needed));
+  if (u_max - u_min == 0.0)
+    throw InputError("voltage is constant at " + std::to_string(u_max) +
+                     " V: no excitation to identify from");
+}
+
+FitFigures FitFiguresOf(std::span<const double> measured, std::span<const double> predicted,
+                        std::span<const double> input, int correlation_lags) {
+  FitFigures fit;
+  fit.samples = measured.size();
+  fit.fit_percent = FitPercent(measured, predicted);
+  fit.rmse_mm = Rmse(measured, predicted);
+  std::vector<double> residual(measured.size());
+  double residual_spread = 0.0, input_spread = 0.0;
+  for (size_t k = 0; k < residual.size(); ++k) {
+    residual[k] = measured[k] - predicted[k];
+    residual_spread = std::max(residual_spread, std::abs(residual[k] - residual.front()));
+    input_spread = std::max(input_spread, std::abs(input[k] - input.front()));
+  }
+  const int lags = std::min<int>(correlation_lags, static_cast<int>(residual.size() / 4));
+  if (lags >= 1 && residual_spread > 0.0) {
+    fit.whiteness = TestWhiteness(residual, lags);
+    if (input_spread > 0.0)
+      fit.cross_correlation = TestInputResidualCorrelation(input, residual, lags);
+  }
+  return fit;
+}
+
+FitFigures FitOnSegments(const std::vector<DataSegment>& segments,
+                         const std::function<std::vector<double>(const DataSegment&)>& predict,
+                         int correlation_lags) {
   std::vector<double> measured, predicted, input;
   for (const DataSegment& seg : segments) {
-    const std::vector<double> y =
-        SimulateUniform(tf, seg.dt_s, seg.voltage_V, {.initial_voltage_V = seg.initial_voltage_V});
+    const std::vector<double> y = predict(seg);
     for (size_t k = seg.fit_begin; k < y.size(); ++k) {
       measured.push_back(seg.deflection_mm[k]);
       predicted.push_back(y[k]);
       input.push_back(seg.voltage_V[k]);
     }
   }
-  FitFigures fit;
-  fit.samples = measured.size();
-  fit.fit_percent = FitPercent(measured, predicted);
-  fit.rmse_mm = Rmse(measured, predicted);
-  std::vector<double> residual(measured.size());
-  for (size_t k = 0; k < residual.size(); ++k) residual[k] = measured[k] - predicted[k];
-  const int lags = std::min<int>(correlation_lags, static_cast<int>(residual.size() / 4));
-  if (lags >= 1) {
-    try {
-      fit.whiteness = TestWhiteness(residual, lags);
-      fit.cross_correlation = TestInputResidualCorrelation(input, residual, lags);
-    } catch (const std::invalid_argument&) {
-      // A constant residual or input (a fitted stretch at one voltage) has no correlation
-      // to test; the tests stay empty (max_lag 0).
-    }
-  }
-  return fit;
+  return FitFiguresOf(measured, predicted, input, correlation_lags);
+}
+
+FitFigures EvaluateFit(const TransferFunction& tf, const std::vector<DataSegment>& segments,
+                       int correlation_lags) {
+  return FitOnSegments(
+      segments,
+      [&tf](const DataSegment& seg) {
+        return SimulateUniform(tf, seg.dt_s, seg.voltage_V,
+                               {.initial_voltage_V = seg.initial_voltage_V});
+      },
+      correlation_lags);
 }
 
 TfEstimate IdentifyTransferFunction(const std::vector<DataSegment>& segments,
                                     const IdentifyOptions& options) {
   std::string why;
   if (!options.IsValid(&why)) throw std::invalid_argument("identification options: " + why);
-  const double dt_s = CheckSegments(segments, options);
+  ValidateSegments(segments, options.num_zeros + options.num_poles + 2, options.max_delay_s);
+  const double dt_s = CommonSamplePeriod(segments);
   const int n = options.num_poles, m = options.num_zeros;
   const int na = n, nb = n + 1;
   // Stages 1-3 only give the output-error fit its start: on long records they use the

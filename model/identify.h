@@ -40,6 +40,7 @@
 // level are fitted jointly: one model, all residuals.
 #pragma once
 
+#include <functional>
 #include <optional>
 #include <span>
 #include <string>
@@ -116,5 +117,22 @@ TfEstimate IdentifyTransferFunction(const std::vector<DataSegment>& segments,
 // Fit figures of any model on segments (the validation figures).
 FitFigures EvaluateFit(const TransferFunction& tf, const std::vector<DataSegment>& segments,
                        int correlation_lags = 25);
+
+// Fit %, RMSE and the residual tests of predictions against measurements (the tests are
+// left empty when the residual or the input has no variance, e.g. a perfect fit).
+FitFigures FitFiguresOf(std::span<const double> measured, std::span<const double> predicted,
+                        std::span<const double> input, int correlation_lags = 25);
+
+// The same over the fitted samples of segments, with `predict` giving each segment's
+// predicted deflection (every sample, lead-in included).
+FitFigures FitOnSegments(const std::vector<DataSegment>& segments,
+                         const std::function<std::vector<double>(const DataSegment&)>& predict,
+                         int correlation_lags = 25);
+
+// Checks what every fit needs of its segments, before any solver sees them: finite values,
+// equal lengths, something to fit after the lead-in, at least 20 samples per parameter and
+// the dead-time range plus 50, and an input that changes (counting the step from the
+// voltage held before a segment). Throws InputError with one line naming the problem.
+void ValidateSegments(const std::vector<DataSegment>& segments, int parameters, double max_delay_s);
 
 }  // namespace flexid::model

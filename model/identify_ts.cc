@@ -93,37 +93,9 @@ std::vector<double> PredictSegment(const TsModel& model, const DataSegment& seg)
                          {.initial_voltage_V = seg.initial_voltage_V});
 }
 
-FitFigures FiguresOf(const std::vector<double>& measured, const std::vector<double>& predicted,
-                     const std::vector<double>& input, int correlation_lags) {
-  FitFigures fit;
-  fit.samples = measured.size();
-  fit.fit_percent = FitPercent(measured, predicted);
-  fit.rmse_mm = Rmse(measured, predicted);
-  std::vector<double> residual(measured.size());
-  for (size_t k = 0; k < residual.size(); ++k) residual[k] = measured[k] - predicted[k];
-  const int lags = std::min<int>(correlation_lags, static_cast<int>(residual.size() / 4));
-  if (lags >= 1) {
-    try {
-      fit.whiteness = TestWhiteness(residual, lags);
-      fit.cross_correlation = TestInputResidualCorrelation(input, residual, lags);
-    } catch (const std::invalid_argument&) {
-      // A constant residual or input has no correlation to test; the tests stay empty.
-    }
-  }
-  return fit;
-}
-
 FitFigures SegmentsFit(const TsModel& model, const std::vector<DataSegment>& segments, int lags) {
-  std::vector<double> measured, predicted, input;
-  for (const DataSegment& seg : segments) {
-    const std::vector<double> y = PredictSegment(model, seg);
-    for (size_t k = seg.fit_begin; k < y.size(); ++k) {
-      measured.push_back(seg.deflection_mm[k]);
-      predicted.push_back(y[k]);
-      input.push_back(seg.voltage_V[k]);
-    }
-  }
-  return FiguresOf(measured, predicted, input, lags);
+  return FitOnSegments(
+      segments, [&model](const DataSegment& seg) { return PredictSegment(model, seg); }, lags);
 }
 
 }  // namespace
@@ -227,7 +199,7 @@ FitFigures EvaluateTsFit(const TsModel& model, const std::vector<Recording>& rec
     input.insert(input.end(), rec.voltage_V.begin(), rec.voltage_V.end());
   }
   if (measured.empty()) throw InputError("no validation samples");
-  return FiguresOf(measured, predicted, input, correlation_lags);
+  return FitFiguresOf(measured, predicted, input, correlation_lags);
 }
 
 }  // namespace flexid::model

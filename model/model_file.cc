@@ -16,7 +16,6 @@ namespace {
 constexpr const char* kSchedulingChoices =
     "expected \"abs_voltage\", \"voltage\" or \"abs_voltage_held\"";
 
-
 using nlohmann::json;
 using nlohmann::ordered_json;
 
@@ -314,8 +313,8 @@ class DocumentReader {
     if (const auto it = scheduling.find("variable"); it != scheduling.end()) {
       const std::string name = String(*it, "/scheduling/variable", kSchedulingChoices);
       if (!ParseSchedulingVariable(name, &model.scheduling)) {
-        Fail("/scheduling/variable", "unknown scheduling variable " + Quoted(name) + " (" +
-                                         kSchedulingChoices + ")");
+        Fail("/scheduling/variable",
+             "unknown scheduling variable " + Quoted(name) + " (" + kSchedulingChoices + ")");
       }
     }
     if (const auto it = scheduling.find("rest_band_V"); it != scheduling.end()) {
@@ -574,6 +573,26 @@ ModelDocument FromTsModel(const TsModel& model) {
   document.ts = model;
   document.local_extra.assign(model.rules.size(), json::object());
   return document;
+}
+
+nlohmann::json FitFiguresToJson(const FitFigures& fit) {
+  auto number = [](double v) {
+    return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr);
+  };
+  nlohmann::json out = {{"samples", fit.samples},
+                        {"fit_percent", number(fit.fit_percent)},
+                        {"rmse_mm", number(fit.rmse_mm)}};
+  if (fit.whiteness.max_lag > 0)
+    out["whiteness"] = {{"passed", fit.whiteness.passed},
+                        {"max_lag", fit.whiteness.max_lag},
+                        {"ljung_box_q", fit.whiteness.ljung_box_q},
+                        {"threshold_95", fit.whiteness.chi2_threshold}};
+  if (fit.cross_correlation.max_lag > 0)
+    out["input_residual_correlation"] = {{"passed", fit.cross_correlation.passed},
+                                         {"max_lag", fit.cross_correlation.max_lag},
+                                         {"max_abs", fit.cross_correlation.max_abs},
+                                         {"bound_95", fit.cross_correlation.bound}};
+  return out;
 }
 
 }  // namespace flexid::model

@@ -38,6 +38,7 @@
 #include <string_view>
 #include <vector>
 
+#include "model/identify.h"
 #include "model/transfer_function.h"
 #include "model/ts_fuzzy.h"
 
@@ -85,6 +86,10 @@ nlohmann::json ModelToJson(const ModelDocument& document);
 void WriteModelFile(const std::string& path, const ModelDocument& document);
 
 // The model as a T-S model: a transfer function becomes a single rule (SingleRule).
+// Fit figures as stored in model files and replies: samples, fit_percent, rmse_mm, and
+// the whiteness and input-residual correlation tests when they were run.
+nlohmann::json FitFiguresToJson(const FitFigures& fit);
+
 TsModel AsTsModel(const ModelDocument& document);
 
 ModelDocument FromTransferFunction(const TransferFunction& tf);

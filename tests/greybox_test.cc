@@ -279,7 +279,12 @@ TEST(GreyBox, RejectsBadDataOptionsAndStart) {
     return std::vector<DataSegment>{seg};
   };
   EXPECT_THROW(IdentifyPhysics({}, start), InputError);
-  EXPECT_THROW(IdentifyPhysics(with([](DataSegment& s) { s.voltage_V.assign(400, 5.0); }), start),
+  // Constant input held before the segment too: no step anywhere.
+  EXPECT_THROW(IdentifyPhysics(with([](DataSegment& s) {
+                                 s.voltage_V.assign(400, 5.0);
+                                 s.initial_voltage_V = 5.0;
+                               }),
+                               start),
                InputError);
   EXPECT_THROW(IdentifyPhysics(with([](DataSegment& s) {
                                  s.deflection_mm[17] = std::numeric_limits<double>::quiet_NaN();
@@ -302,7 +307,11 @@ TEST(GreyBox, RejectsBadDataOptionsAndStart) {
                                start),
                InputError);  // too short
   try {
-    IdentifyPhysics(with([](DataSegment& s) { s.voltage_V.assign(400, 5.0); }), start);
+    IdentifyPhysics(with([](DataSegment& s) {
+                      s.voltage_V.assign(400, 5.0);
+                      s.initial_voltage_V = 5.0;
+                    }),
+                    start);
   } catch (const InputError& error) {
     EXPECT_EQ(std::string(error.what()).find('\n'), std::string::npos);  // one line
   }

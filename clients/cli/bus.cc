@@ -9,6 +9,7 @@
 #include <random>
 
 #include "clients/cli/command.h"
+#include "lcmtypes/wire_check.h"
 
 namespace flexid::cli {
 

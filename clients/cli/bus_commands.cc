@@ -11,6 +11,7 @@
 #include "clients/cli/bus.h"
 #include "clients/cli/command.h"
 #include "clients/cli/format.h"
+#include "lcmtypes/wire_check.h"
 
 namespace flexid::cli {
 namespace {
@@ -49,7 +50,9 @@ struct Watcher {
   std::map<std::string, int64_t> last_printed;  // per actuator, message time
   static void OnPrediction(const lcm::ReceiveBuffer* rbuf, const std::string&, Watcher* self) {
     flexid::prediction_t p;
-    if (p.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) <= 0) return;
+    if (!wire::WellFormed(rbuf->data, rbuf->data_size, wire::kPrediction) ||
+        p.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) <= 0)
+      return;
     if (!self->args.actuator.empty() && p.actuator_id != self->args.actuator) return;
     int64_t& last = self->last_printed[p.actuator_id];
     if (last != 0 && p.utime - last < static_cast<int64_t>(self->args.every_s * 1e6)) return;
@@ -62,7 +65,9 @@ struct Watcher {
   }
   static void OnAlert(const lcm::ReceiveBuffer* rbuf, const std::string&, Watcher* self) {
     flexid::alert_t a;
-    if (a.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) <= 0) return;
+    if (!wire::WellFormed(rbuf->data, rbuf->data_size, wire::kAlert) ||
+        a.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) <= 0)
+      return;
     if (!self->args.actuator.empty() && a.actuator_id != self->args.actuator) return;
     std::cout << "ALERT " << a.actuator_id << " " << a.kind << ": " << a.text << "\n";
   }

@@ -45,23 +45,6 @@ struct IdentifyArgs {
 
 json Number(double value) { return std::isfinite(value) ? json(value) : json(nullptr); }
 
-json FitJson(const model::FitFigures& fit) {
-  json out = {{"samples", fit.samples},
-              {"fit_percent", Number(fit.fit_percent)},
-              {"rmse_mm", Number(fit.rmse_mm)}};
-  if (fit.whiteness.max_lag > 0)
-    out["whiteness"] = {{"passed", fit.whiteness.passed},
-                        {"max_lag", fit.whiteness.max_lag},
-                        {"ljung_box_q", fit.whiteness.ljung_box_q},
-                        {"threshold_95", fit.whiteness.chi2_threshold}};
-  if (fit.cross_correlation.max_lag > 0)
-    out["input_residual_correlation"] = {{"passed", fit.cross_correlation.passed},
-                                         {"max_lag", fit.cross_correlation.max_lag},
-                                         {"max_abs", fit.cross_correlation.max_abs},
-                                         {"bound_95", fit.cross_correlation.bound}};
-  return out;
-}
-
 json IntervalsJson(const std::vector<model::ParameterEstimate>& estimates) {
   json out = json::object();
   for (const auto& e : estimates)
@@ -145,7 +128,7 @@ void AddValidation(const IdentifyArgs& args, const model::TsModel& model,
                    model::ModelDocument* doc) {
   if (args.validate.empty()) return;
   const model::FitFigures validation = model::EvaluateTsFit(model, ReadAll(args.validate, true));
-  doc->extra["validation"] = FitJson(validation);
+  doc->extra["validation"] = model::FitFiguresToJson(validation);
   doc->extra["validation"]["recordings"] = args.validate;
   if (!args.as_json) PrintFit("validation", validation);
 }
@@ -171,7 +154,7 @@ void RunFree(const IdentifyArgs& args, model::ModelDocument* doc,
   for (size_t i = 0; i < estimate.local.size(); ++i) {
     const model::TfEstimate& e = estimate.local[i].estimate;
     json local = {
-        {"fit", FitJson(e.fit)},
+        {"fit", model::FitFiguresToJson(e.fit)},
         {"intervals", IntervalsJson(e.coefficients)},
         {"dc_gain",
          {{"value", e.dc_gain.value}, {"half_width_95", Number(e.dc_gain.half_width_95)}}},
@@ -183,7 +166,7 @@ void RunFree(const IdentifyArgs& args, model::ModelDocument* doc,
       doc->local_extra[i] = local;
     }
   }
-  doc->extra["fit"] = FitJson(estimate.fit);
+  doc->extra["fit"] = model::FitFiguresToJson(estimate.fit);
   if (!estimate.leave_one_level_out.empty()) {
     json lolo = json::array();
     for (const auto& r : estimate.leave_one_level_out)
@@ -241,7 +224,7 @@ void RunPhysics(const IdentifyArgs& args, model::ModelDocument* doc,
   doc->extra["identifiable_combinations"] = IntervalsJson(e.combinations);
   doc->extra["geometry_mm"] = {
       {"L", start.L_m * 1e3}, {"W", start.W_m * 1e3}, {"h", start.h_m * 1e3}};
-  doc->extra["fit"] = FitJson(e.fit);
+  doc->extra["fit"] = model::FitFiguresToJson(e.fit);
   doc->extra["note"] =
       "num/den: small-bending linearisation (deflection = curvature L^2/2) of the fitted chain";
   if (!args.as_json) {
