@@ -82,6 +82,7 @@ struct ActuatorState {
   bool automatic_trial = false;
   int64_t last_active_utime = kNoTime;  // last voltage outside the rest band
   int64_t last_sample_utime = kNoTime;
+  int64_t trial_start_utime = kNoTime;
   Predictor predictor;
   std::unique_ptr<ResidualMonitor> monitor;
 };
@@ -102,7 +103,12 @@ struct Daemon::Impl {
   storage::Database db;
   std::unique_ptr<storage::SampleWriter> writer;
   lcm::LCM lcm;
-  Counters counters;
+  // Updated by the loop, read by status and by other threads (counters()): relaxed atomics.
+  struct LiveCounters {
+    std::atomic<int64_t> messages_received{0}, samples_accepted{0}, rejected_malformed{0},
+        rejected_nonfinite{0}, rejected_out_of_order{0}, rejected_unknown_actuator{0},
+        dropped_queue_full{0}, predictions_published{0}, alerts_raised{0};
+  } counters;
   std::map<std::string, ActuatorState> actuators;
   std::atomic<bool> stop{false};
   int signal_fd = -1;
@@ -260,7 +266,8 @@ struct Daemon::Impl {
   ActuatorState* SampleActuator(const std::string& channel, const std::string& message_id) {
     const size_t first = config.channel_prefix.size() + 1;
     const size_t second = channel.find('/', first);
-    if (second == std::string::npos || channel.compare(first, second - first, message_id) != 0) {
+    if (second == std::string::npos || channel.find('/', second + 1) != std::string::npos ||
+        channel.compare(first, second - first, message_id) != 0) {
       ++counters.rejected_malformed;  // misaddressed: the channel names another actuator
       return nullptr;
     }
@@ -373,6 +380,7 @@ struct Daemon::Impl {
   void StartTrial(ActuatorState* state, const std::string& protocol, int64_t utime,
                   bool automatic) {
     state->trial_id = db.StartTrial(state->info.id, protocol, utime);
+    state->trial_start_utime = utime;
     state->automatic_trial = automatic;
     state->last_sample_utime = kNoTime;
     spdlog::info("trial started [actuator: {}, trial: {}, protocol: {}]", state->info.id,
@@ -380,7 +388,11 @@ struct Daemon::Impl {
   }
 
   void StopTrial(ActuatorState* state, int64_t utime, storage::TrialState how) {
-    const int64_t end = state->last_sample_utime != kNoTime ? state->last_sample_utime : utime;
+    // A trial ends at its last sample; one without samples ends where it started (message
+    // time; 0 would read as "still recording").
+    const int64_t end = state->last_sample_utime != kNoTime ? state->last_sample_utime
+                        : utime > state->trial_start_utime  ? utime
+                                                            : state->trial_start_utime;
     db.EndTrial(state->trial_id, end, how);
     spdlog::info("trial ended [actuator: {}, trial: {}, state: {}]", state->info.id,
                  state->trial_id, storage::TrialStateName(how));
@@ -561,7 +573,17 @@ struct Daemon::Impl {
   }
 
   Counters Snapshot() const {
-    Counters c = counters;
+    Counters c;
+    c.messages_received = counters.messages_received.load(std::memory_order_relaxed);
+    c.samples_accepted = counters.samples_accepted.load(std::memory_order_relaxed);
+    c.rejected_malformed = counters.rejected_malformed.load(std::memory_order_relaxed);
+    c.rejected_nonfinite = counters.rejected_nonfinite.load(std::memory_order_relaxed);
+    c.rejected_out_of_order = counters.rejected_out_of_order.load(std::memory_order_relaxed);
+    c.rejected_unknown_actuator =
+        counters.rejected_unknown_actuator.load(std::memory_order_relaxed);
+    c.dropped_queue_full = counters.dropped_queue_full.load(std::memory_order_relaxed);
+    c.predictions_published = counters.predictions_published.load(std::memory_order_relaxed);
+    c.alerts_raised = counters.alerts_raised.load(std::memory_order_relaxed);
     c.samples_stored = writer->stored();
     return c;
   }
@@ -792,7 +814,7 @@ RpcOutcome Daemon::Impl::HandleRequest(const flexid::rpc_request_t& request) {
       return {Reply::kOk, list, "", false};
     }
     if (method == "trial_samples") {
-      const int64_t id = IntegerArgument(args, "trial", 0, 1, INT64_MAX);
+      const int64_t id = RequiredIntegerArgument(args, "trial", 1, INT64_MAX);
       const auto trial = db.FindTrial(id);
       if (!trial) return {Reply::kNotFound, nullptr, "no trial " + std::to_string(id), false};
       const int64_t offset = IntegerArgument(args, "offset", 0, 0, INT64_MAX);
@@ -835,7 +857,8 @@ RpcOutcome Daemon::Impl::HandleRequest(const flexid::rpc_request_t& request) {
     }
     if (method == "model_activate") {
       ActuatorState* state = actuator_of(true);
-      const auto version = static_cast<int32_t>(IntegerArgument(args, "version", 0, 1, INT32_MAX));
+      const auto version =
+          static_cast<int32_t>(RequiredIntegerArgument(args, "version", 1, INT32_MAX));
       if (!db.FindModel(state->info.id, version))
         return {Reply::kNotFound, nullptr, "no such model version", false};
       db.ActivateModel(state->info.id, version);

@@ -43,4 +43,10 @@ int64_t IntegerArgument(const nlohmann::json& args, const char* name, int64_t fa
   return value;
 }
 
+int64_t RequiredIntegerArgument(const nlohmann::json& args, const char* name, int64_t min,
+                                int64_t max) {
+  if (!args.contains(name)) throw ArgumentError(std::string("missing argument \"") + name + "\"");
+  return IntegerArgument(args, name, min, min, max);
+}
+
 }  // namespace flexid::daemon

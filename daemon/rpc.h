@@ -35,5 +35,7 @@ std::string StringArgument(const nlohmann::json& args, const char* name,
                            const std::string* fallback = nullptr);
 int64_t IntegerArgument(const nlohmann::json& args, const char* name, int64_t fallback, int64_t min,
                         int64_t max);
+int64_t RequiredIntegerArgument(const nlohmann::json& args, const char* name, int64_t min,
+                                int64_t max);
 
 }  // namespace flexid::daemon
