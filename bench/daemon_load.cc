@@ -101,7 +101,9 @@ struct Options {
   int64_t recv_buf_size = 0;  // LCM udpm recv_buf_size= (0: LCM's default, the kernel's)
   bool tap_deflections = true;
   std::string log_level = "warn";
-  bool keep = false;  // keep the temporary database
+  bool keep = false;       // keep the temporary database
+  std::string dump;        // CSV of every timed sample, for offline analysis
+  int renice_workers = 0;  // experiment: nice of the daemon's writer and worker threads
 };
 
 [[noreturn]] void Usage(const std::string& problem) {
@@ -109,7 +111,7 @@ struct Options {
                "daemon_load: %s\nusage: daemon_load [--seconds S] [--actuators N] [--rate-hz R] "
                "[--identify-at S] [--period-s S] [--first-trial-s S] [--recv-buf-size BYTES] "
                "[--tap-deflections 0|1] "
-               "[--log-level LEVEL] [--keep]\n",
+               "[--log-level LEVEL] [--dump FILE.csv] [--renice-workers NICE] [--keep]\n",
                problem.c_str());
   std::exit(2);
 }
@@ -150,6 +152,10 @@ Options ParseOptions(int argc, char** argv) {
       o.tap_deflections = Number(flag, value) != 0.0;
     else if (flag == "--log-level")
       o.log_level = value;
+    else if (flag == "--dump")
+      o.dump = value;
+    else if (flag == "--renice-workers")
+      o.renice_workers = static_cast<int>(Number(flag, value));
     else
       Usage("unknown option " + flag);
   }
@@ -157,6 +163,7 @@ Options ParseOptions(int argc, char** argv) {
   if (o.actuators < 1 || o.actuators > 100) Usage("--actuators must be 1..100");
   if (o.rate_hz < 1 || o.rate_hz > 10000) Usage("--rate-hz must be 1..10000");
   if (o.period_s <= 0) Usage("--period-s must be positive");
+  if (o.renice_workers < 0 || o.renice_workers > 19) Usage("--renice-workers must be 0..19");
   if (o.first_trial_s < 0 || o.first_trial_s > 3600) Usage("--first-trial-s must be 0..3600");
   if (o.recv_buf_size < 0) Usage("--recv-buf-size must be >= 0");
   if (o.identify_at > 0 && (o.identify_at < 2 || o.identify_at > o.seconds - 0.5))
@@ -811,6 +818,27 @@ int main(int argc, char** argv) {
     subscriber.Stop();
     return 1;
   }
+  // The threads the daemon started, in the order daemon.cc starts them (Impl's constructor).
+  std::vector<pid_t> daemon_threads;
+  for (const auto& [tid, t] : ThreadCpuTimes())
+    if (!threads_before_daemon.count(tid) && t.name == "flexidd") daemon_threads.push_back(tid);
+  const char* const kDaemonThreadRoles[] = {"sample writer", "LCM receive",
+                                            "identification worker"};
+  if (opt.renice_workers > 0) {
+    // Experiment, not the daemon's behaviour: lower the priority of the sample writer and
+    // the identification worker so that the loop and LCM's receive thread win the CPU.
+    if (daemon_threads.size() == 3) {
+      for (size_t n : {size_t{0}, size_t{2}})
+        if (setpriority(PRIO_PROCESS, static_cast<id_t>(daemon_threads[n]), opt.renice_workers) !=
+            0)
+          std::fprintf(stderr, "daemon_load: cannot renice thread %d\n", daemon_threads[n]);
+      std::printf("EXPERIMENT: daemon's sample writer and identification worker at nice %d\n",
+                  opt.renice_workers);
+    } else {
+      std::fprintf(stderr, "daemon_load: --renice-workers: found %zu daemon threads, not 3\n",
+                   daemon_threads.size());
+    }
+  }
   uint64_t daemon_inode = 0, bench_inode = 0;
   for (const auto& [inode, s] : UdpSockets(port))
     (sockets_before.count(inode) ? bench_inode : daemon_inode) = inode;
@@ -1078,7 +1106,8 @@ int main(int argc, char** argv) {
     const double machine_s = static_cast<double>(machine_end.busy - machine_start.busy) / hz;
     const double steal_s = static_cast<double>(machine_end.steal - machine_start.steal) / hz;
     std::printf(
-        "  machine: %.2f cores busy on average, of which other processes %.2f (steal %.2f)%s\n",
+        "  machine: %.2f cores busy on average, of which other processes >= %.2f (steal %.2f; "
+        "/proc/stat is tick-sampled and under-counts bursty threads)%s\n",
         wall_s > 0 ? machine_s / wall_s : 0.0,
         wall_s > 0 ? std::max(0.0, machine_s - cpu_s) / wall_s : 0.0,
         wall_s > 0 ? steal_s / wall_s : 0.0,
@@ -1136,6 +1165,15 @@ int main(int argc, char** argv) {
     if (model_swapped_at_k >= 0)
       std::printf("  first L00 prediction with the new model: sample %" PRId64 " (t = %.3f s)\n",
                   model_swapped_at_k, static_cast<double>(model_swapped_at_k) / plan.rate_hz);
+  }
+
+  if (!opt.dump.empty()) {
+    std::ofstream out(opt.dump);
+    out << "publish_ms,ext_ms,s2s_ms\n";
+    for (const Point& p : points)
+      out << 1e-6 * static_cast<double>(p.publish_ns) << ',' << 1e-3 * p.ext_us << ','
+          << 1e-3 * p.s2s_us << '\n';
+    std::printf("samples written to %s\n", opt.dump.c_str());
   }
 
   // Deflections published in a window after each event of the run: what the daemon did then
@@ -1200,7 +1238,7 @@ int main(int argc, char** argv) {
                 others, restart ? "  L00 trial restart" : "", ident ? "  identification" : "");
   }
   std::printf(
-      "  ours / others: cores busy with this process / with other processes on the machine "
+      "  ours / others: cores busy with this process / at least with other processes "
       "(2 cores; /proc/stat)\n");
   std::printf(
       "  late: publisher ticks that started more than one period late; not_db: deflections "
@@ -1209,14 +1247,11 @@ int main(int argc, char** argv) {
   std::printf("\n== CPU by thread during the run (s) ==\n");
   std::map<pid_t, std::string> labels;
   {
-    // The daemon's threads other than its loop, in the order daemon.cc starts them.
-    const char* order[] = {"sample writer", "LCM receive", "identification worker"};
-    size_t n = 0;
-    for (const auto& [tid, t] : threads_end) {
-      if (threads_before_daemon.count(tid) || t.name != "flexidd") continue;
-      labels[tid] = n < 3 ? order[n] : "started by the daemon";
-      ++n;
-    }
+    for (size_t n = 0; n < daemon_threads.size(); ++n)
+      labels[daemon_threads[n]] = n < 3 ? kDaemonThreadRoles[n] : "started by the daemon";
+    for (const auto& [tid, t] : threads_end)
+      if (!threads_before_daemon.count(tid) && t.name == "flexidd" && !labels.count(tid))
+        labels[tid] = "started by the daemon";
     labels[daemon_loop_tid] = "event loop";
     for (const auto& [tid, t] : threads_end)
       if (t.name == "bench-sub") labels[tid] = tid == subscriber_tid ? "dispatch" : "LCM receive";

@@ -107,8 +107,9 @@ TEST(WireCheck, RandomBytesNeverPassUnlessDecodable) {
   // Whatever passes the check must decode cleanly with the generated decoder.
   std::mt19937 rng(3);
   std::uniform_int_distribution<int> byte(0, 255), length(0, 64);
-  flexid::voltage_sample_t reference;
-  const std::vector<uint8_t> fingerprint(Encode(reference).begin(), Encode(reference).begin() + 8);
+  flexid::voltage_sample_t reference{};
+  const std::vector<uint8_t> encoded = Encode(reference);
+  const std::vector<uint8_t> fingerprint(encoded.begin(), encoded.begin() + 8);
   for (int trial = 0; trial < 20000; ++trial) {
     std::vector<uint8_t> bytes(fingerprint);
     const int extra = length(rng);
