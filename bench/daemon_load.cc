@@ -6,25 +6,39 @@
 //    identification runs."
 //
 //   build/bench/daemon_load [--seconds 20] [--actuators 16] [--rate-hz 500]
-//                           [--identify-at 10] [--period-s 4] [--recv-buf-size BYTES]
-//                           [--tap-deflections 1] [--log-level warn] [--keep]
+//       [--identify-at 10 (0: none)] [--period-s 4] [--first-trial-s 22]
+//       [--recv-buf-size BYTES (LCM udpm recv_buf_size=, daemon and bench)]
+//       [--commit-interval-ms MS (the daemon's setting)] [--tap-deflections 1]
+//       [--log-level warn] [--dump FILE.csv] [--keep]
+//   experiments on the daemon's threads (not its own behaviour; labelled in the output):
+//       [--renice-workers NICE] (sample writer + identification worker at that nice)
+//       [--pin-daemon] (loop + LCM receive on CPU 0, writer + worker on CPU 1)
 //
 // A program that prints figures, not a test: no thresholds are checked; the targets are
-// printed beside the measurements.
+// printed beside the measurements. The machine is shared (2 cores): the figures say how
+// busy other processes kept it, second by second.
 //
 // What runs, all in this process: flexidd (daemon::Daemon looping RunOnce(20) on its own
 // thread, a temporary database, lcm_url udpm://239.255.76.67:<random port>?ttl=0), a
 // publisher thread and a subscriber thread, each with its own LCM instance.
 //  - Publisher: per actuator L00..L<N-1>, at the rate in message time paced in real time
-//    (sleep_until), a voltage_sample_t (0/5 V square wave, phases staggered) and then a
-//    deflection_sample_t (first-order lag with dead time + noise), utime = message time.
-//    trial_control kStart for every actuator first, kStop for every one at the end; L00's
-//    trial is stopped and restarted 1 s before --identify-at so that a finished trial exists.
+//    (sleep_until; lateness is reported), a voltage_sample_t (0/5 V square wave, phases
+//    staggered) and then a deflection_sample_t (first-order lag with dead time + noise),
+//    utime = message time. trial_control kStart for every actuator first, kStop for every
+//    one at the end. L00's trial is stopped and restarted 1 s before --identify-at, so that
+//    a finished trial exists; that first trial also gets a history published before t0
+//    (faster than real time), so that it holds --first-trial-s of samples: the daemon's
+//    identification needs max_delay_s / dt + 50 samples (10 s at the default max_delay_s),
+//    and 22 s at 500 Hz is the 11,000 samples of DESIGN.md's identification target.
 //  - Subscriber: FLEXID/.*/PREDICTION (and, with --tap-deflections 1, FLEXID/.*/DEFLECTION,
 //    only for its kernel receive time stamp) and the RPC replies.
 //  - At --identify-at: "identify" {"actuator": "L00", "latest": 1} (L00's first trial).
+//  - At the end: "status" RPCs until samples_stored == predictions_published -
+//    dropped_queue_full (every accepted deflection is in a trial), then the daemon is
+//    stopped and destroyed and the database is read back and compared with what was
+//    published, sample by sample.
 //
-// Latency figures, per deflection sample matched to its prediction:
+// Latency figures, per deflection sample matched to its prediction (from t0 on):
 //  - external: steady_clock before the deflection's publish -> steady_clock in the
 //    subscriber's handler. Two loopback UDP hops, the daemon, and this program's own LCM
 //    receive thread and dispatch.
@@ -34,8 +48,10 @@
 //    sendmsg, so the first stamp is also when the deflection reached the daemon's socket:
 //    this figure is the daemon's handling (its LCM receive thread, queue, loop, handler,
 //    publish) plus one loopback hop, without this program's scheduling. It is the closest
-//    to the target's "after the deflection message arrives".
+//    to the target's "after the deflection message arrives". The daemon's own time inside
+//    is not exposed, so nothing finer is measured.
 #include <pthread.h>
+#include <sched.h>
 #include <sys/resource.h>
 #include <sys/socket.h>
 #include <sys/syscall.h>
@@ -101,9 +117,11 @@ struct Options {
   int64_t recv_buf_size = 0;  // LCM udpm recv_buf_size= (0: LCM's default, the kernel's)
   bool tap_deflections = true;
   std::string log_level = "warn";
-  bool keep = false;       // keep the temporary database
-  std::string dump;        // CSV of every timed sample, for offline analysis
-  int renice_workers = 0;  // experiment: nice of the daemon's writer and worker threads
+  bool keep = false;           // keep the temporary database
+  std::string dump;            // CSV of every timed sample, for offline analysis
+  int renice_workers = 0;      // experiment: nice of the daemon's writer and worker threads
+  int commit_interval_ms = 0;  // the daemon's commit_interval_ms (0: its default)
+  bool pin_daemon = false;     // experiment: loop + LCM receive on CPU 0, writer + worker on 1
 };
 
 [[noreturn]] void Usage(const std::string& problem) {
@@ -111,7 +129,8 @@ struct Options {
                "daemon_load: %s\nusage: daemon_load [--seconds S] [--actuators N] [--rate-hz R] "
                "[--identify-at S] [--period-s S] [--first-trial-s S] [--recv-buf-size BYTES] "
                "[--tap-deflections 0|1] "
-               "[--log-level LEVEL] [--dump FILE.csv] [--renice-workers NICE] [--keep]\n",
+               "[--log-level LEVEL] [--dump FILE.csv] [--commit-interval-ms MS] "
+               "[--renice-workers NICE] [--pin-daemon] [--keep]\n",
                problem.c_str());
   std::exit(2);
 }
@@ -130,6 +149,10 @@ Options ParseOptions(int argc, char** argv) {
     const std::string flag = argv[i];
     if (flag == "--keep") {
       o.keep = true;
+      continue;
+    }
+    if (flag == "--pin-daemon") {
+      o.pin_daemon = true;
       continue;
     }
     if (i + 1 >= argc) Usage(flag + " needs a value");
@@ -154,6 +177,8 @@ Options ParseOptions(int argc, char** argv) {
       o.log_level = value;
     else if (flag == "--dump")
       o.dump = value;
+    else if (flag == "--commit-interval-ms")
+      o.commit_interval_ms = static_cast<int>(Number(flag, value));
     else if (flag == "--renice-workers")
       o.renice_workers = static_cast<int>(Number(flag, value));
     else
@@ -393,6 +418,9 @@ class Subscriber {
     stop_ = true;
     if (thread_.joinable()) thread_.join();
   }
+  ~Subscriber() { Stop(); }
+  Subscriber(const Subscriber&) = delete;
+  Subscriber& operator=(const Subscriber&) = delete;
   // The origin of the recorded times; set before the publisher starts.
   void SetT0(Clock::time_point t0) { t0_ns_ = t0.time_since_epoch().count(); }
   pid_t tid() const { return tid_; }
@@ -680,6 +708,7 @@ class LoadMonitor {
     stop_ = true;
     if (thread_.joinable()) thread_.join();
   }
+  ~LoadMonitor() { Stop(); }
   // Per second: cores busy on the machine, of which this process, and steal.
   std::vector<double> machine_cores_, self_cores_, steal_cores_;
 
@@ -787,6 +816,7 @@ int main(int argc, char** argv) {
   config.log_file = "";
   config.log_level = opt.log_level;
   config.daemon_id = "load";
+  if (opt.commit_interval_ms > 0) config.commit_interval_ms = opt.commit_interval_ms;
   try {
     flexid::daemon::Validate(config);
   } catch (const std::exception& e) {
@@ -795,7 +825,8 @@ int main(int argc, char** argv) {
   }
   flexid::daemon::SetUpLogging(config);
 
-  std::printf("lcm url: %s   database: %s\n", url.c_str(), database.c_str());
+  std::printf("lcm url: %s   database: %s   commit_interval_ms: %d\n", url.c_str(),
+              database.c_str(), config.commit_interval_ms);
   std::printf(
       "load: %d actuators x %g Hz = %g deflection + %g voltage messages/s for %g s (message "
       "time paced in real time); square wave 0/%g V, period %g s\n",
@@ -837,6 +868,24 @@ int main(int argc, char** argv) {
     } else {
       std::fprintf(stderr, "daemon_load: --renice-workers: found %zu daemon threads, not 3\n",
                    daemon_threads.size());
+    }
+  }
+  if (opt.pin_daemon) {
+    // Experiment, not the daemon's behaviour: the loop and LCM's receive thread alone on
+    // CPU 0 (with whatever else the scheduler puts there), the writer and worker on CPU 1.
+    auto pin = [](pid_t tid, int cpu) {
+      cpu_set_t set;
+      CPU_ZERO(&set);
+      CPU_SET(cpu, &set);
+      if (sched_setaffinity(tid, sizeof set, &set) != 0)
+        std::fprintf(stderr, "daemon_load: cannot pin thread %d\n", tid);
+    };
+    if (daemon_threads.size() == 3) {
+      pin(daemon.tid(), 0);
+      pin(daemon_threads[1], 0);
+      pin(daemon_threads[0], 1);
+      pin(daemon_threads[2], 1);
+      std::printf("EXPERIMENT: daemon loop + LCM receive pinned to CPU 0, writer + worker to 1\n");
     }
   }
   uint64_t daemon_inode = 0, bench_inode = 0;
@@ -1135,10 +1184,11 @@ int main(int argc, char** argv) {
   std::printf(
       "  external: publish() call -> this program's handler: two loopback UDP hops + the "
       "daemon + this program's LCM receive thread and dispatch.\n");
-  std::printf(
-      "  socket to socket: kernel receive stamps (SO_TIMESTAMP, 1 us) of the deflection "
-      "and of the prediction: the daemon (LCM receive thread, queue, loop, handler, "
-      "publish) + one hop.\n");
+  if (opt.tap_deflections)
+    std::printf(
+        "  socket to socket: kernel receive stamps (SO_TIMESTAMP, 1 us) of the deflection "
+        "and of the prediction: the daemon (LCM receive thread, queue, loop, handler, "
+        "publish) + one hop.\n");
 
   std::printf("\n== identification ==\n");
   if (!identify) {

@@ -1,5 +1,9 @@
 #include "storage/sample_writer.h"
 
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
 #include <algorithm>
 #include <exception>
 #include <stdexcept>
@@ -39,7 +43,11 @@ SampleWriter::SampleWriter(const std::string& db_path, SampleWriterOptions optio
   // holds the lock meanwhile) in steady state. Untouched capacity costs no memory.
   incoming_.reserve(options_.queue_capacity);
   batch_.reserve(options_.queue_capacity);
-  thread_ = std::thread([this] { Run(); });
+  thread_ = std::thread([this, nice = options.thread_nice] {
+    // Linux: nice applies per thread when given the thread id.
+    if (nice != 0) setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), nice);
+    Run();
+  });
 }
 
 SampleWriter::~SampleWriter() {

@@ -38,6 +38,10 @@ struct SampleWriterOptions {
   // Samples held in memory at most (queued plus being committed): 2^18 is 32 s of
   // 16 actuators x 500 Hz, 8 MiB.
   size_t queue_capacity = 1 << 18;
+  // Run the writer thread at this nice value (Linux, per thread; 0 leaves it alone). A
+  // service that answers in real time gives its writer a lower priority (e.g. 10) so that
+  // commits yield the cores to the threads that handle messages.
+  int thread_nice = 0;
 
   // True if usable; otherwise false with the reason in *error (if error is not null).
   bool IsValid(std::string* error = nullptr) const;
