@@ -12,7 +12,8 @@
 //       [--log-level warn] [--dump FILE.csv] [--keep]
 //   experiments on the daemon's threads (not its own behaviour; labelled in the output):
 //       [--renice-workers NICE] (sample writer + identification worker at that nice)
-//       [--pin-daemon] (loop + LCM receive on CPU 0, writer + worker on CPU 1)
+//       [--pin-threads] (the daemon's pin_threads: loop + LCM receive on CPU 0, writer + worker on
+//       the others)
 //
 // A program that prints figures, not a test: no thresholds are checked; the targets are
 // printed beside the measurements. The machine is shared (2 cores): the figures say how
@@ -121,7 +122,7 @@ struct Options {
   std::string dump;            // CSV of every timed sample, for offline analysis
   int renice_workers = 0;      // experiment: nice of the daemon's writer and worker threads
   int commit_interval_ms = 0;  // the daemon's commit_interval_ms (0: its default)
-  bool pin_daemon = false;     // experiment: loop + LCM receive on CPU 0, writer + worker on 1
+  bool pin_threads = false;    // the daemon's pin_threads setting (daemon/config.h)
 };
 
 [[noreturn]] void Usage(const std::string& problem) {
@@ -130,7 +131,7 @@ struct Options {
                "[--identify-at S] [--period-s S] [--first-trial-s S] [--recv-buf-size BYTES] "
                "[--tap-deflections 0|1] "
                "[--log-level LEVEL] [--dump FILE.csv] [--commit-interval-ms MS] "
-               "[--renice-workers NICE] [--pin-daemon] [--keep]\n",
+               "[--renice-workers NICE] [--pin-threads] [--keep]\n",
                problem.c_str());
   std::exit(2);
 }
@@ -151,8 +152,8 @@ Options ParseOptions(int argc, char** argv) {
       o.keep = true;
       continue;
     }
-    if (flag == "--pin-daemon") {
-      o.pin_daemon = true;
+    if (flag == "--pin-threads") {
+      o.pin_threads = true;
       continue;
     }
     if (i + 1 >= argc) Usage(flag + " needs a value");
@@ -811,6 +812,7 @@ int main(int argc, char** argv) {
   const std::string database = (dir / "flexid.db").string();
 
   flexid::daemon::Config config;
+  config.pin_threads = opt.pin_threads;
   config.database = database;
   config.lcm_url = url;
   config.log_file = "";
@@ -868,24 +870,6 @@ int main(int argc, char** argv) {
     } else {
       std::fprintf(stderr, "daemon_load: --renice-workers: found %zu daemon threads, not 3\n",
                    daemon_threads.size());
-    }
-  }
-  if (opt.pin_daemon) {
-    // Experiment, not the daemon's behaviour: the loop and LCM's receive thread alone on
-    // CPU 0 (with whatever else the scheduler puts there), the writer and worker on CPU 1.
-    auto pin = [](pid_t tid, int cpu) {
-      cpu_set_t set;
-      CPU_ZERO(&set);
-      CPU_SET(cpu, &set);
-      if (sched_setaffinity(tid, sizeof set, &set) != 0)
-        std::fprintf(stderr, "daemon_load: cannot pin thread %d\n", tid);
-    };
-    if (daemon_threads.size() == 3) {
-      pin(daemon.tid(), 0);
-      pin(daemon_threads[1], 0);
-      pin(daemon_threads[0], 1);
-      pin(daemon_threads[2], 1);
-      std::printf("EXPERIMENT: daemon loop + LCM receive pinned to CPU 0, writer + worker to 1\n");
     }
   }
   uint64_t daemon_inode = 0, bench_inode = 0;

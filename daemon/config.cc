@@ -61,7 +61,7 @@ Config LoadConfigFile(const std::string& path) {
   CheckKeys(root,
             {"daemon_id", "database", "lcm_url", "channel_prefix", "log_file", "log_level",
              "commit_interval_ms", "auto_trials", "trial_idle_stop_s", "accept_unknown_actuators",
-             "max_message_bytes", "actuators", "identification", "alerts"},
+             "max_message_bytes", "pin_threads", "actuators", "identification", "alerts"},
             path);
   Read(root, "daemon_id", path, &c.daemon_id);
   Read(root, "database", path, &c.database);
@@ -74,6 +74,7 @@ Config LoadConfigFile(const std::string& path) {
   Read(root, "trial_idle_stop_s", path, &c.trial_idle_stop_s);
   Read(root, "accept_unknown_actuators", path, &c.accept_unknown_actuators);
   Read(root, "max_message_bytes", path, &c.max_message_bytes);
+  Read(root, "pin_threads", path, &c.pin_threads);
   if (const toml::table* id = root["identification"].as_table()) {
     const std::string where = path + ": identification";
     CheckKeys(*id, {"zeros", "poles", "max_delay_s", "latest_trials"}, where);
@@ -171,7 +172,8 @@ std::vector<std::string> Describe(const Config& c) {
       "auto_trials: " + std::string(c.auto_trials ? "true" : "false") +
           ", trial_idle_stop_s: " + std::to_string(c.trial_idle_stop_s),
       "accept_unknown_actuators: " + std::string(c.accept_unknown_actuators ? "true" : "false"),
-      "max_message_bytes: " + std::to_string(c.max_message_bytes),
+      "max_message_bytes: " + std::to_string(c.max_message_bytes) +
+          ", pin_threads: " + std::string(c.pin_threads ? "true" : "false"),
       "identification: zeros " + std::to_string(c.identification.zeros) + ", poles " +
           std::to_string(c.identification.poles) + ", max_delay_s " +
           std::to_string(c.identification.max_delay_s) + ", latest_trials " +

@@ -30,6 +30,10 @@ struct Config {
   double trial_idle_stop_s = 300.0;  // an automatic trial stops after this long at 0 V
   bool accept_unknown_actuators = true;
   int64_t max_message_bytes = 65536;
+  // Pin the loop and LCM's receive thread to CPU 0, and the sample writer and the
+  // identification worker to the other CPUs. Keeps a fit from delaying predictions on a
+  // small machine; leave it off when several daemons share a host.
+  bool pin_threads = false;
   std::vector<storage::Actuator> actuators;
   IdentificationConfig identification;
   MonitorOptions alerts;

@@ -142,6 +142,7 @@ struct Daemon::Impl {
   std::deque<IdentifyResult> finished;
   std::atomic<bool> identifying{false};
   bool worker_exit = false;
+  std::vector<int> background_cpus;  // pin_threads: the writer's and the worker's CPUs
 
   Impl(Config c, std::string path)
       : config(std::move(c)),
@@ -172,6 +173,17 @@ struct Daemon::Impl {
     storage::SampleWriterOptions options;
     options.commit_interval = std::chrono::milliseconds(config.commit_interval_ms);
     options.thread_nice = kBackgroundNice;
+    const int cpus = static_cast<int>(std::thread::hardware_concurrency());
+    if (config.pin_threads && cpus >= 2) {
+      for (int cpu = 1; cpu < cpus; ++cpu) background_cpus.push_back(cpu);
+      options.thread_cpus = background_cpus;
+      // This thread runs the loop; LCM's receive thread, created at the first
+      // subscription below, inherits CPU 0 from it.
+      cpu_set_t set;
+      CPU_ZERO(&set);
+      CPU_SET(0, &set);
+      pthread_setaffinity_np(pthread_self(), sizeof set, &set);
+    }
     writer = std::make_unique<storage::SampleWriter>(config.database, options);
 
     // LCM keeps at most 30 undispatched messages per subscription by default and drops
@@ -506,6 +518,12 @@ struct Daemon::Impl {
     // Identification takes a whole core for up to a second: run it under SCHED_IDLE, so
     // that it only ever uses a core nobody else wants and the loop wakes without waiting
     // for one (nice alone left a few ms of wake-up delay on two cores when a fit started).
+    if (!background_cpus.empty()) {
+      cpu_set_t set;
+      CPU_ZERO(&set);
+      for (int cpu : background_cpus) CPU_SET(cpu, &set);
+      pthread_setaffinity_np(pthread_self(), sizeof set, &set);
+    }
     sched_param idle{};
     if (pthread_setschedparam(pthread_self(), SCHED_IDLE, &idle) != 0)
       setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), kBackgroundNice);

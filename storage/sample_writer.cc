@@ -1,5 +1,7 @@
 #include "storage/sample_writer.h"
 
+#include <pthread.h>
+#include <sched.h>
 #include <sys/resource.h>
 #include <sys/syscall.h>
 #include <unistd.h>
@@ -43,9 +45,15 @@ SampleWriter::SampleWriter(const std::string& db_path, SampleWriterOptions optio
   // holds the lock meanwhile) in steady state. Untouched capacity costs no memory.
   incoming_.reserve(options_.queue_capacity);
   batch_.reserve(options_.queue_capacity);
-  thread_ = std::thread([this, nice = options.thread_nice] {
+  thread_ = std::thread([this, nice = options.thread_nice, cpus = options.thread_cpus] {
     // Linux: nice applies per thread when given the thread id.
     if (nice != 0) setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), nice);
+    if (!cpus.empty()) {
+      cpu_set_t set;
+      CPU_ZERO(&set);
+      for (int cpu : cpus) CPU_SET(cpu, &set);
+      pthread_setaffinity_np(pthread_self(), sizeof set, &set);
+    }
     Run();
   });
 }

@@ -42,6 +42,8 @@ struct SampleWriterOptions {
   // service that answers in real time gives its writer a lower priority (e.g. 10) so that
   // commits yield the cores to the threads that handle messages.
   int thread_nice = 0;
+  // Run the writer thread on these CPUs only (empty: wherever the scheduler likes).
+  std::vector<int> thread_cpus = {};
 
   // True if usable; otherwise false with the reason in *error (if error is not null).
   bool IsValid(std::string* error = nullptr) const;
