@@ -46,6 +46,16 @@ namespace flexid::daemon {
 namespace {
 
 constexpr int64_t kNoTime = INT64_MIN;
+
+// SIGTERM and SIGINT stop the loop, SIGHUP reloads.
+sigset_t HandledSignals() {
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGTERM);
+  sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGHUP);
+  return signals;
+}
 constexpr int kQueueCapacity = 1 << 17;  // messages per sample subscription
 // The sample writer and the identification worker run at this nice value, so that their
 // bursts (a commit every 100 ms, a fit taking a core for a second) yield the cores to the
@@ -153,12 +163,7 @@ struct Daemon::Impl {
     // Signals are taken through signalfd in the loop. They are blocked here, before any
     // thread starts, so that every thread inherits the mask: a SIGTERM delivered to the
     // writer or the worker would otherwise end the process without flushing.
-    sigset_t signals;
-    sigemptyset(&signals);
-    sigaddset(&signals, SIGTERM);
-    sigaddset(&signals, SIGINT);
-    sigaddset(&signals, SIGHUP);
-    pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+    BlockHandledSignals();
 
     const int interrupted = db.MarkRecordingTrialsInterrupted();
     if (interrupted > 0)
@@ -196,6 +201,7 @@ struct Daemon::Impl {
     lcm.subscribeFunction(p + "/RPC/REQUEST", &Impl::OnRequestThunk, this)->setQueueCapacity(1000);
     lcm.subscribeFunction(p + "/TRIAL", &Impl::OnTrialControlThunk, this)->setQueueCapacity(1000);
 
+    const sigset_t signals = HandledSignals();
     signal_fd = signalfd(-1, &signals, SFD_NONBLOCK | SFD_CLOEXEC);
     wake_fd = eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
     if (signal_fd < 0 || wake_fd < 0)
@@ -1017,6 +1023,11 @@ int Daemon::Run() {
 void Daemon::RunOnce(int timeout_ms) { impl_->RunOnce(timeout_ms); }
 void Daemon::Stop() { impl_->stop = true; }
 Counters Daemon::counters() const { return impl_->Snapshot(); }
+
+void BlockHandledSignals() {
+  const sigset_t signals = HandledSignals();
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+}
 
 void SetUpLogging(const Config& config) {
   std::vector<spdlog::sink_ptr> sinks = {std::make_shared<spdlog::sinks::stderr_color_sink_mt>()};

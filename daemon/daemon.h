@@ -62,6 +62,11 @@ class Daemon {
   std::unique_ptr<Impl> impl_;
 };
 
+// Blocks SIGTERM, SIGINT and SIGHUP in the calling thread (and so in every thread it
+// starts afterwards): the loop takes them through signalfd. Call it first in main(), so
+// that a signal during start-up waits for the loop.
+void BlockHandledSignals();
+
 // Sets up spdlog (console + rotating file) once per process; safe to call again (SIGHUP).
 void SetUpLogging(const Config& config);
 

@@ -14,12 +14,7 @@ int main(int argc, char** argv) {
   // SIGTERM, SIGINT and SIGHUP are handled by the event loop (signalfd). Block them before
   // anything else, so that one arriving during start-up waits for the loop instead of
   // ending the process.
-  sigset_t signals;
-  sigemptyset(&signals);
-  sigaddset(&signals, SIGTERM);
-  sigaddset(&signals, SIGINT);
-  sigaddset(&signals, SIGHUP);
-  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+  flexid::daemon::BlockHandledSignals();
   CLI::App app{
       "flexidd: records actuator trials from the bus, predicts live, raises alerts, identifies on "
       "demand"};
