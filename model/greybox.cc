@@ -339,19 +339,9 @@ GreyBoxEstimate IdentifyPhysics(const std::vector<DataSegment>& segments,
       ssr / static_cast<double>(std::max<long>(1, static_cast<long>(samples) - q));
   estimate.noise_std_mm = std::sqrt(sigma2);
   Matrix5 covariance = Matrix5::Zero();  // zero row and column for a fixed delay
-  bool determined = false;
-  {
-    const Eigen::MatrixXd sub = jtj.topLeftCorner(q, q);
-    const Eigen::VectorXd scale = sub.diagonal().cwiseMax(1e-300).cwiseSqrt().cwiseInverse();
-    const Eigen::MatrixXd scaled = scale.asDiagonal() * sub * scale.asDiagonal();
-    Eigen::FullPivLU<Eigen::MatrixXd> lu(scaled);
-    lu.setThreshold(1e-13);
-    if (lu.isInvertible()) {
-      covariance.topLeftCorner(q, q) =
-          sigma2 * scale.asDiagonal() * lu.inverse() * scale.asDiagonal();
-      determined = true;
-    }
-  }
+  Eigen::MatrixXd free_covariance;
+  const bool determined = CovarianceFromNormalMatrix(jtj, q, sigma2, &free_covariance);
+  if (determined) covariance.topLeftCorner(q, q) = free_covariance;
   // Variance of c^T x; +inf when J^T J is singular.
   auto variance = [&](const Vector5& c) { return determined ? c.dot(covariance * c) : kInf; };
 

@@ -724,6 +724,17 @@ bool IdentifyOptions::IsValid(std::string* error) const {
   return true;
 }
 
+bool CovarianceFromNormalMatrix(const Eigen::MatrixXd& jtj, int q, double sigma2,
+                                Eigen::MatrixXd* covariance) {
+  const Eigen::MatrixXd sub = jtj.topLeftCorner(q, q);
+  const Eigen::VectorXd scale = sub.diagonal().cwiseMax(1e-300).cwiseSqrt().cwiseInverse();
+  Eigen::FullPivLU<Eigen::MatrixXd> lu(scale.asDiagonal() * sub * scale.asDiagonal());
+  lu.setThreshold(1e-13);
+  if (!lu.isInvertible()) return false;
+  *covariance = sigma2 * scale.asDiagonal() * lu.inverse() * scale.asDiagonal();
+  return true;
+}
+
 void ValidateSegments(const std::vector<DataSegment>& segments, int parameters,
                       double max_delay_s) {
   if (segments.empty()) throw InputError("no data to identify from");
@@ -974,14 +985,9 @@ TfEstimate IdentifyTransferFunction(const std::vector<DataSegment>& segments,
   Eigen::MatrixXd covariance = Eigen::MatrixXd::Constant(p, p, kInf);
   {
     const int q = free_parameters;  // the delay is last; drop it when fixed
-    const Eigen::MatrixXd sub = jtj.topLeftCorner(q, q);
-    const Eigen::VectorXd scale = sub.diagonal().cwiseMax(1e-300).cwiseSqrt().cwiseInverse();
-    const Eigen::MatrixXd scaled = scale.asDiagonal() * sub * scale.asDiagonal();
-    Eigen::FullPivLU<Eigen::MatrixXd> lu(scaled);
-    lu.setThreshold(1e-13);
-    if (lu.isInvertible()) {
-      covariance.topLeftCorner(q, q) =
-          sigma2 * scale.asDiagonal() * lu.inverse() * scale.asDiagonal();
+    Eigen::MatrixXd free_covariance;
+    if (CovarianceFromNormalMatrix(jtj, q, sigma2, &free_covariance)) {
+      covariance.topLeftCorner(q, q) = free_covariance;
       if (q < p) {
         covariance.row(p - 1).setZero();
         covariance.col(p - 1).setZero();

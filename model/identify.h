@@ -40,6 +40,7 @@
 // level are fitted jointly: one model, all residuals.
 #pragma once
 
+#include <Eigen/Dense>
 #include <functional>
 #include <optional>
 #include <span>
@@ -128,6 +129,12 @@ FitFigures FitFiguresOf(std::span<const double> measured, std::span<const double
 FitFigures FitOnSegments(const std::vector<DataSegment>& segments,
                          const std::function<std::vector<double>(const DataSegment&)>& predict,
                          int correlation_lags = 25);
+
+// sigma^2 (J^T J)^{-1} for the leading q parameters, inverted with Jacobi scaling (the
+// columns of J differ by orders of magnitude). False, and *covariance untouched, when J^T J
+// is singular to 1e-13 after scaling: those parameters are not determined by the data.
+bool CovarianceFromNormalMatrix(const Eigen::MatrixXd& jtj, int q, double sigma2,
+                                Eigen::MatrixXd* covariance);
 
 // Checks what every fit needs of its segments, before any solver sees them: finite values,
 // equal lengths, something to fit after the lead-in, at least 20 samples per parameter and
