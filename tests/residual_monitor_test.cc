@@ -11,22 +11,12 @@
 #include <string>
 #include <vector>
 
+#include "gaussian.h"
+
 namespace flexid::daemon {
 namespace {
 
-// Standard normal draws by Box-Muller on std::mt19937_64 (whose sequence the C++ standard
-// fixes), so the runs are the same with every standard library.
-class Gaussian {
- public:
-  explicit Gaussian(uint64_t seed) : engine_(seed) {}
-  double operator()() {
-    return std::sqrt(-2 * std::log(Uniform())) * std::cos(2 * std::numbers::pi * Uniform());
-  }
-
- private:
-  double Uniform() { return (static_cast<double>(engine_() >> 11) + 0.5) * 0x1.0p-53; }
-  std::mt19937_64 engine_;
-};
+using testing::Gaussian;
 
 // Residual noise of a model that fits: Gaussian AR(1) with marginal standard deviation
 // sigma_mm and lag-1 autocorrelation rho (rho = 0: white), started stationary.

@@ -8,22 +8,12 @@
 #include <random>
 #include <vector>
 
+#include "gaussian.h"
+
 namespace flexid::model {
 namespace {
 
-// Standard normal draws by Box-Muller on std::mt19937_64 (whose sequence the C++ standard
-// fixes), so the trials are the same with every standard library.
-class Gaussian {
- public:
-  explicit Gaussian(uint64_t seed) : engine_(seed) {}
-  double operator()() {
-    return std::sqrt(-2 * std::log(Uniform())) * std::cos(2 * std::numbers::pi * Uniform());
-  }
-
- private:
-  double Uniform() { return (static_cast<double>(engine_() >> 11) + 0.5) * 0x1.0p-53; }
-  std::mt19937_64 engine_;
-};
+using testing::Gaussian;
 
 std::vector<double> WhiteNoise(size_t n, Gaussian& normal) {
   std::vector<double> x(n);
