@@ -37,6 +37,7 @@
 #include "daemon/rpc.h"
 #include "flexid/version.h"
 #include "lcmtypes/wire_check.h"
+#include "model/diagnose.h"
 #include "model/identify_ts.h"
 #include "model/model_file.h"
 #include "model/simulate.h"
@@ -116,11 +117,15 @@ struct ActuatorState {
 };
 
 // A finished identification, handed from the worker to the loop.
+// A finished diagnosis carries its result instead (diagnosis is an object).
 struct IdentifyResult {
   RpcContext request;
   std::string actuator_id;
   std::optional<storage::ModelRecord> model;  // stored and active
   std::string error;
+  nlohmann::json diagnosis = nullptr;  // the diagnose method's result
+  int64_t trial_id = 0;
+  int64_t trial_start_utime = 0;
 };
 
 }  // namespace
@@ -469,6 +474,33 @@ struct Daemon::Impl {
     }
   }
 
+  // A diagnosis that names an effect is an alert of that effect's kind (the catalogue of
+  // model/diagnose.h), spanning the trial, with the explanation as its text.
+  void ReportDiagnosis(const IdentifyResult& result) {
+    const nlohmann::json& d = result.diagnosis;
+    auto it = actuators.find(result.actuator_id);
+    const std::string verdict = d.value("verdict", "none");
+    if (it != actuators.end() && verdict != "none" && d["findings"].is_array() &&
+        !d["findings"].empty()) {
+      const nlohmann::json& f = d["findings"][0];
+      Alert alert;
+      alert.kind = verdict;
+      alert.severity = 1;
+      double first_s = 0.0, last_s = 0.0;
+      if (f["where"].is_array() && !f["where"].empty()) {
+        first_s = f["where"].front().value("t_start_s", 0.0);
+        last_s = f["where"].back().value("t_end_s", 0.0);
+      }
+      alert.start_utime = result.trial_start_utime + static_cast<int64_t>(first_s * 1e6);
+      alert.end_utime = result.trial_start_utime + static_cast<int64_t>(last_s * 1e6);
+      alert.magnitude_mm = f.value("heldout_rmse_before_mm", 0.0);
+      alert.threshold_mm = f.value("heldout_rmse_after_mm", 0.0);
+      alert.text = "trial " + std::to_string(result.trial_id) + ": " + f.value("explanation", "");
+      Raise(&it->second, {alert});
+    }
+    Reply(result.request, {flexid::rpc_reply_t::kOk, d, "", false});
+  }
+
   // Tells the bus that a new model is active: an info alert of kind "model_changed".
   void AnnounceModel(ActuatorState* state, const storage::ModelRecord& record) {
     const nlohmann::json fit = nlohmann::json::parse(record.fit_json, nullptr, false);
@@ -572,8 +604,13 @@ struct Daemon::Impl {
       done.swap(finished);
     }
     for (IdentifyResult& result : done) {
+      if (result.diagnosis.is_object()) {
+        ReportDiagnosis(result);
+        continue;
+      }
       if (!result.model) {
-        spdlog::error("identification failed [actuator: {}, error: {}]", result.actuator_id,
+        spdlog::error("{} failed [actuator: {}, error: {}]",
+                      result.trial_id ? "diagnosis" : "identification", result.actuator_id,
                       result.error);
         Reply(result.request, {flexid::rpc_reply_t::kFailed, nullptr, result.error, false});
         continue;
@@ -743,6 +780,49 @@ nlohmann::json AlertJson(const storage::AlertRecord& a) {
           {"magnitude_mm", a.magnitude_mm},
           {"threshold_mm", a.threshold_mm},
           {"text", a.text}};
+}
+
+// Diagnosis of one stored trial against the actuator's active model (or, without one or
+// when asked, against the seed's structure identified on the trial), on the worker thread
+// with its own connection.
+IdentifyResult RunDiagnosis(const std::string& database, const std::string& actuator_id,
+                            int64_t trial_id, bool use_model, RpcContext request) {
+  IdentifyResult result{std::move(request), actuator_id, std::nullopt, "", nullptr, trial_id, 0};
+  try {
+    storage::Database db = storage::Database::Open(database);
+    const std::vector<storage::Sample> samples = db.Samples(trial_id);
+    if (samples.size() < 200)
+      throw std::runtime_error("trial " + std::to_string(trial_id) + " has only " +
+                               std::to_string(samples.size()) + " samples; diagnosis needs 200");
+    model::Recording rec;
+    rec.source = "trial " + std::to_string(trial_id);
+    result.trial_start_utime = samples.front().utime;
+    for (const storage::Sample& s : samples) {
+      rec.t_s.push_back(1e-6 * static_cast<double>(s.utime - samples.front().utime));
+      rec.voltage_V.push_back(s.voltage_V);
+      rec.deflection_mm.push_back(s.deflection_mm);
+    }
+    std::optional<model::TsModel> trusted;
+    model::DiagnoseOptions options;
+    int32_t version = 0;
+    if (use_model) {
+      if (const auto active = db.ActiveModel(actuator_id)) {
+        const model::ModelDocument doc =
+            model::ParseModelJson(active->model_json, "model " + std::to_string(active->version));
+        trusted = model::AsTsModel(doc);
+        for (const model::Augmentation& a : doc.augmentations)
+          options.baseline_effects.push_back(model::EffectFromAugmentation(a));
+        version = active->version;
+      }
+    }
+    result.diagnosis = model::DiagnosisToJson(model::Diagnose(rec, trusted, options));
+    result.diagnosis["trial"] = trial_id;
+    result.diagnosis["model_version"] = version;  // 0: identified on the trial
+  } catch (const std::exception& e) {
+    result.error = e.what();
+    result.diagnosis = nullptr;
+  }
+  return result;
 }
 
 // Identification of one actuator on stored trials, on the worker thread with its own
@@ -996,6 +1076,44 @@ RpcOutcome Daemon::Impl::HandleRequest(const flexid::rpc_request_t& request) {
                 "an identification is already running; try again when it ends", false};
       spdlog::info("identification started [actuator: {}, trials: {}]", id,
                    nlohmann::json(trials).dump());
+      return {Reply::kOk, nullptr, "", true};
+    }
+    if (method == "diagnose") {
+      ActuatorState* state = actuator_of(true);
+      int64_t trial_id = 0;
+      if (args.contains("trial")) {
+        trial_id = RequiredIntegerArgument(args, "trial", 1, std::numeric_limits<int64_t>::max());
+        const auto trial = db.FindTrial(trial_id);
+        if (!trial || trial->actuator_id != state->info.id)
+          return {Reply::kNotFound, nullptr,
+                  "no trial " + std::to_string(trial_id) + " of " + state->info.id, false};
+      } else {
+        for (const storage::Trial& t : db.Trials(state->info.id, 1000))
+          if (t.state != storage::TrialState::kRecording && t.samples >= 200) {
+            trial_id = t.id;
+            break;
+          }
+        if (trial_id == 0)
+          return {Reply::kNotFound, nullptr, state->info.id + " has no finished trial to diagnose",
+                  false};
+      }
+      bool use_model = true;
+      if (const auto it = args.find("use_model"); it != args.end()) {
+        if (!it->is_boolean()) throw ArgumentError("argument \"use_model\" must be true or false");
+        use_model = it->get<bool>();
+      }
+      storage::SampleWriter* samples = writer.get();
+      const std::string database = config.database, id = state->info.id;
+      const RpcContext context{request.request_id, request.client_id};
+      if (!Submit([database, id, trial_id, use_model, context, samples] {
+            if (!samples->Flush())
+              return IdentifyResult{context, id, std::nullopt,
+                                    "cannot commit samples: " + samples->last_error()};
+            return RunDiagnosis(database, id, trial_id, use_model, context);
+          }))
+        return {Reply::kBusy, nullptr,
+                "an identification or diagnosis is already running; try again when it ends", false};
+      spdlog::info("diagnosis started [actuator: {}, trial: {}]", id, trial_id);
       return {Reply::kOk, nullptr, "", true};
     }
     return {Reply::kBadRequest, nullptr, "unknown method \"" + method + "\"", false};

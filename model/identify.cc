@@ -479,14 +479,7 @@ double NoiseFromData(const std::vector<DataSegment>& segments) {
     for (size_t k = seg.fit_begin + 2; k < seg.deflection_mm.size(); ++k)
       second.push_back(seg.deflection_mm[k] - 2.0 * seg.deflection_mm[k - 1] +
                        seg.deflection_mm[k - 2]);
-  if (second.empty()) return 0.0;
-  auto median = [](std::vector<double> v) {
-    std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
-    return v[v.size() / 2];
-  };
-  const double centre = median(second);
-  for (double& v : second) v = std::abs(v - centre);
-  return 1.4826 * median(second) / std::sqrt(6.0);
+  return RobustSpread(std::move(second)) / std::sqrt(6.0);
 }
 
 // Ends the fit when a successful step lowers the cost by less than `threshold`.

@@ -73,6 +73,36 @@ DataSegment FitSegment(const UniformRecording& rec, const LevelSegment& seg) {
   return data;
 }
 
+// The fitted samples of `data` (recording indices first + i) outside the excluded spans,
+// as pieces that each simulate from the segment's start: [0, piece end) with the piece's
+// samples after fit_begin. Pieces with fewer than 2 fitted samples are dropped.
+std::vector<DataSegment> WithoutExcludedSpans(DataSegment data, const UniformRecording& rec,
+                                              size_t first,
+                                              const std::vector<std::pair<double, double>>& spans) {
+  if (spans.empty()) return {std::move(data)};
+  auto excluded = [&](size_t i) {
+    const double t = rec.t_s[first + i];
+    for (const auto& [a, b] : spans)
+      if (t >= a && t < b) return true;
+    return false;
+  };
+  std::vector<DataSegment> pieces;
+  size_t i = data.fit_begin;
+  const size_t n = data.voltage_V.size();
+  while (i < n) {
+    while (i < n && excluded(i)) ++i;
+    const size_t begin = i;
+    while (i < n && !excluded(i)) ++i;
+    if (i - begin < 2) continue;
+    DataSegment piece = data;
+    piece.voltage_V.resize(i);
+    piece.deflection_mm.resize(i);
+    piece.fit_begin = begin;
+    pieces.push_back(std::move(piece));
+  }
+  return pieces;
+}
+
 // A level's segment as recorded (absolute values), starting in steady state under its
 // first voltage when it has a lead-in: what the blend is evaluated on.
 DataSegment AbsoluteSegment(const UniformRecording& rec, const LevelSegment& seg) {
@@ -101,6 +131,11 @@ FitFigures SegmentsFit(const TsModel& model, const std::vector<DataSegment>& seg
 }  // namespace
 
 bool TsIdentifyOptions::IsValid(std::string* error) const {
+  for (const auto& [a, b] : excluded_spans_s)
+    if (!std::isfinite(a) || !std::isfinite(b) || !(a < b)) {
+      *error = "an excluded span needs finite times with start < end";
+      return false;
+    }
   return local.IsValid(error) && levels.IsValid(error);
 }
 
@@ -138,7 +173,11 @@ TsEstimate IdentifyTsModel(const std::vector<Recording>& recordings,
   for (const VoltageLevel& level : levels.levels) {
     std::vector<DataSegment> segments, absolute;
     for (const LevelSegment& seg : level.segments) {
-      segments.push_back(FitSegment(uniform[seg.recording], seg));
+      const UniformRecording& rec = uniform[seg.recording];
+      for (DataSegment& piece :
+           WithoutExcludedSpans(FitSegment(rec, seg), rec, seg.begin == 0 ? 0 : seg.fit_begin,
+                                options.excluded_spans_s))
+        segments.push_back(std::move(piece));
       absolute.push_back(AbsoluteSegment(uniform[seg.recording], seg));
     }
     LocalModelReport report;

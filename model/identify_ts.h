@@ -13,6 +13,7 @@
 #pragma once
 
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "model/identify.h"
@@ -25,6 +26,13 @@ namespace flexid::model {
 struct TsIdentifyOptions {
   IdentifyOptions local;         // per local model
   LevelDetectionOptions levels;  // plateau / level detection
+  // Samples with t_s in [first, second) of any span are simulated but never fitted (held
+  // out, e.g. for diagnosis): a level's segment that overlaps a span is fitted as pieces,
+  // each simulated from the segment's start and fitted only on its own samples. The
+  // recordings' deflection inside the spans still enters the linear starting estimate's
+  // regressors (stage 1-2 of identify.h), so pass placeholders there if those samples
+  // must stay unseen. The fit figures of TsEstimate cover every sample.
+  std::vector<std::pair<double, double>> excluded_spans_s;
   bool IsValid(std::string* error) const;
 };
 

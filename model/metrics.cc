@@ -1,5 +1,6 @@
 #include "model/metrics.h"
 
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
 
@@ -33,6 +34,23 @@ double Rmse(std::span<const double> measured, std::span<const double> predicted)
   for (size_t k = 0; k < measured.size(); ++k)
     error += (measured[k] - predicted[k]) * (measured[k] - predicted[k]);
   return std::sqrt(error / static_cast<double>(measured.size()));
+}
+
+double RobustSpread(std::vector<double> values) {
+  if (values.empty()) return 0.0;
+  auto median = [](std::vector<double>& v) {
+    std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
+    return v[v.size() / 2];
+  };
+  const double centre = median(values);
+  for (double& v : values) v = std::abs(v - centre);
+  return 1.4826 * median(values);
+}
+
+double NoiseFromSecondDifferences(std::span<const double> y) {
+  std::vector<double> second;
+  for (size_t k = 2; k < y.size(); ++k) second.push_back(y[k] - 2.0 * y[k - 1] + y[k - 2]);
+  return RobustSpread(std::move(second)) / std::sqrt(6.0);
 }
 
 }  // namespace flexid::model

@@ -2,6 +2,7 @@
 #pragma once
 
 #include <span>
+#include <vector>
 
 namespace flexid::model {
 
@@ -11,5 +12,15 @@ double FitPercent(std::span<const double> measured, std::span<const double> pred
 
 // Root-mean-square of y - yhat, in the output's units (mm).
 double Rmse(std::span<const double> measured, std::span<const double> predicted);
+
+// Robust standard deviation 1.4826 * median(|v - median(v)|) (the MAD scaled to a normal
+// distribution); 0 for no values.
+double RobustSpread(std::vector<double> values);
+
+// Sensor noise of a measured signal from the data alone: sigma = RobustSpread(d2 y) /
+// sqrt(6), with d2 y_k = y_k - 2 y_{k-1} + y_{k-2} (white noise of variance sigma^2 gives
+// d2 y of variance 6 sigma^2; a slow, smooth response contributes little and the few
+// steps are outliers to the median). 0 for fewer than 3 samples.
+double NoiseFromSecondDifferences(std::span<const double> y);
 
 }  // namespace flexid::model

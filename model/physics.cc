@@ -1,5 +1,6 @@
 #include "model/physics.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <numbers>
@@ -357,6 +358,126 @@ std::vector<Table1Row> PredictTable1(const PhysicalParameters& s1_reference, dou
     row.measured_ratio_to_s1 = row.measured_deflection_mm / rows.front().measured_deflection_mm;
   }
   return rows;
+}
+
+double StepCurvature_per_m(const PhysicalParameters& p, double voltage_V, double t_s) {
+  RequireValid(p);
+  if (!std::isfinite(voltage_V)) throw std::invalid_argument("voltage must be finite");
+  if (!std::isfinite(t_s) || !(t_s > 0.0))
+    throw std::invalid_argument("step response time must be finite and > 0, got " + Show(t_s));
+  // Fixed Talbot: f(t) = (r/M) [ F(r) e^{r t}/2 + sum_{k=1}^{M-1} Re( e^{t s_k} F(s_k)
+  // (1 + i sigma_k) ) ] on the contour s(theta) = r theta (cot theta + i), theta_k = k pi/M,
+  // r = 2 M/(5 t), sigma = theta + (theta cot theta - 1) cot theta, with F(s) = G(s)/s.
+  constexpr int kNodes = 24;
+  const double r = 2.0 * kNodes / (5.0 * t_s);
+  double sum = 0.5 * std::exp(r * t_s) * CurvaturePerVoltExact(p, Complex(r, 0.0)).real() / r;
+  for (int k = 1; k < kNodes; ++k) {
+    const double theta = k * kPi / kNodes;
+    const double cot = std::cos(theta) / std::sin(theta);
+    const Complex s = r * theta * Complex(cot, 1.0);
+    const double sigma = theta + (theta * cot - 1.0) * cot;
+    sum += (std::exp(t_s * s) * CurvaturePerVoltExact(p, s) / s * Complex(1.0, sigma)).real();
+  }
+  return voltage_V * r / kNodes * sum;
+}
+
+std::vector<Table1Row> PredictTable1AfterHold(const PhysicalParameters& s1_reference, double hold_s,
+                                              double voltage_V) {
+  if (!std::isfinite(hold_s) || !(hold_s > 0.0))
+    throw std::invalid_argument("hold time must be finite and > 0, got " + Show(hold_s));
+  std::vector<Table1Row> rows = PredictTable1(s1_reference, voltage_V);
+  for (Table1Row& row : rows) {
+    const PhysicalParameters p =
+        WithGeometry(s1_reference, 1e-3 * row.L_mm, 1e-3 * row.W_mm, 1e-3 * row.h_mm);
+    row.predicted_curvature_per_m = StepCurvature_per_m(p, voltage_V, hold_s);
+    row.predicted_deflection_mm =
+        1e3 * TipDeflectionFromCurvature_m(row.predicted_curvature_per_m, p.L_m);
+  }
+  for (Table1Row& row : rows)
+    row.predicted_ratio_to_s1 = row.predicted_deflection_mm / rows.front().predicted_deflection_mm;
+  return rows;
+}
+
+double PowerLawExponent(double y_a, double y_b, double x_a, double x_b) {
+  for (double value : {y_a, y_b, x_a, x_b})
+    if (!std::isfinite(value) || !(value > 0.0))
+      throw std::invalid_argument("power law points must be finite and > 0, got " + Show(value));
+  if (x_a == x_b) throw std::invalid_argument("power law needs two different x, both " + Show(x_a));
+  const double exponent = std::log(y_b / y_a) / std::log(x_b / x_a);
+  return exponent == 0.0 ? 0.0 : exponent;  // no -0 for equal y
+}
+
+ExponentRange PowerLawExponentRange(double y_a, double y_b, double x_a, double x_b,
+                                    double y_half_unit) {
+  const double centre = PowerLawExponent(y_a, y_b, x_a, x_b);  // checks the points
+  if (!std::isfinite(y_half_unit) || y_half_unit < 0.0 || !(y_half_unit < std::min(y_a, y_b)))
+    throw std::invalid_argument("reading uncertainty must be >= 0 and below both values, got " +
+                                Show(y_half_unit));
+  // ln(y_b/y_a) is largest at (y_a - u, y_b + u); dividing by ln(x_b/x_a) may swap the ends.
+  const double one = PowerLawExponent(y_a - y_half_unit, y_b + y_half_unit, x_a, x_b);
+  const double other = PowerLawExponent(y_a + y_half_unit, y_b - y_half_unit, x_a, x_b);
+  ExponentRange range{std::min(one, other), std::max(one, other)};
+  range.low = std::min(range.low, centre);
+  range.high = std::max(range.high, centre);
+  return range;
+}
+
+std::string_view Name(BeamDimension dimension) {
+  switch (dimension) {
+    case BeamDimension::kLength:
+      return "length";
+    case BeamDimension::kWidth:
+      return "width";
+    case BeamDimension::kThickness:
+      return "thickness";
+  }
+  return "unknown";
+}
+
+std::vector<Table1Scaling> AnalyseTable1Scaling(const std::vector<Table1Row>& rows,
+                                                double deflection_half_unit_mm) {
+  std::vector<Table1Scaling> out;
+  if (rows.empty()) return out;
+  const Table1Row& reference = rows.front();
+  for (size_t i = 1; i < rows.size(); ++i) {
+    const Table1Row& row = rows[i];
+    const struct {
+      BeamDimension dimension;
+      double reference_mm, varied_mm;
+    } dimensions[] = {{BeamDimension::kLength, reference.L_mm, row.L_mm},
+                      {BeamDimension::kWidth, reference.W_mm, row.W_mm},
+                      {BeamDimension::kThickness, reference.h_mm, row.h_mm}};
+    int differing = 0;
+    Table1Scaling scaling;
+    for (const auto& d : dimensions) {
+      if (d.reference_mm == d.varied_mm) continue;
+      ++differing;
+      scaling.dimension = d.dimension;
+      scaling.reference_mm = d.reference_mm;
+      scaling.varied_mm = d.varied_mm;
+    }
+    if (differing != 1) continue;
+    scaling.reference_name = reference.name;
+    scaling.varied_name = row.name;
+    scaling.predicted_ratio = row.predicted_deflection_mm / reference.predicted_deflection_mm;
+    scaling.measured_ratio = row.measured_deflection_mm / reference.measured_deflection_mm;
+    scaling.predicted_exponent =
+        PowerLawExponent(reference.predicted_deflection_mm, row.predicted_deflection_mm,
+                         scaling.reference_mm, scaling.varied_mm);
+    scaling.measured_exponent =
+        PowerLawExponent(reference.measured_deflection_mm, row.measured_deflection_mm,
+                         scaling.reference_mm, scaling.varied_mm);
+    scaling.measured_exponent_range =
+        PowerLawExponentRange(reference.measured_deflection_mm, row.measured_deflection_mm,
+                              scaling.reference_mm, scaling.varied_mm, deflection_half_unit_mm);
+    scaling.exponent_uncertainty =
+        std::max(scaling.measured_exponent - scaling.measured_exponent_range.low,
+                 scaling.measured_exponent_range.high - scaling.measured_exponent);
+    scaling.departure = scaling.measured_exponent - scaling.predicted_exponent;
+    scaling.departs = std::abs(scaling.departure) > scaling.exponent_uncertainty;
+    out.push_back(scaling);
+  }
+  return out;
 }
 
 }  // namespace flexid::model

@@ -278,4 +278,81 @@ struct Table1Row {
 std::vector<Table1Row> PredictTable1(const PhysicalParameters& s1_reference,
                                      double voltage_V = kSeedTable1Voltage_V);
 
+// ---- Step response: Eq. (11) in the time domain ----
+
+// Curvature t_s seconds after the voltage steps from 0 to voltage_V (the beam at rest and
+// uncharged before), in 1/m: the inverse Laplace transform of voltage_V K(s)/(V(s) s) with
+// the exact Eq. (11), by the fixed Talbot method (Abate and Valko 2004, Int. J. Numer.
+// Meth. Eng. 60:979) with 24 nodes. Every singularity of Eq. (11) is real and negative (the
+// RC network of the header), the case that contour is made for; the tests find it good to
+// ~1e-9. The cell is an RC admittance, so the charge, and with it K, rises monotonically to
+// DcCurvaturePerVolt(p) voltage_V. Early on (t << 4 h^2/(pi^2 D)) only a surface layer of
+// depth ~sqrt(D t) holds charge, the same for every h, so K ~ 1/h^2 there instead of the
+// steady ~1/h; and while t is not >> the cell time R_s C_dl (1 + h/delta), a beam of larger
+// face area W L (C_dl ~ W L, R_s fixed) lags. Preconditions (checked,
+// std::invalid_argument): IsValid(p), voltage_V finite, t_s finite and > 0.
+double StepCurvature_per_m(const PhysicalParameters& p, double voltage_V, double t_s);
+
+// PredictTable1 for a voltage held hold_s seconds from rest instead of until steady: each
+// row's predicted curvature is StepCurvature_per_m at hold_s (the largest value during the
+// hold, since the step response is monotone) and its deflection the arc formula of that.
+// alpha stays s1_reference's (calibrated on the steady state), so S1's prediction falls
+// below Table 1's for short holds; compare the ratios. Preconditions (checked): those of
+// PredictTable1, hold_s finite and > 0.
+std::vector<Table1Row> PredictTable1AfterHold(const PhysicalParameters& s1_reference, double hold_s,
+                                              double voltage_V = kSeedTable1Voltage_V);
+
+// ---- Table 1 scaling: exponents and reading precision ----
+
+// Table 1 prints the deflections with two decimals, so each is known to +- half a unit in
+// the last digit (the reading precision; the paper gives no trial-to-trial scatter for it).
+inline constexpr double kSeedTable1DeflectionHalfUnit_mm = 0.005;
+
+// Exponent n of the power law y ~ x^n through two points, n = ln(y_b/y_a) / ln(x_b/x_a):
+// d ln y / d ln x over that step. Preconditions (checked, std::invalid_argument): all four
+// finite and > 0, x_a != x_b.
+double PowerLawExponent(double y_a, double y_b, double x_a, double x_b);
+
+struct ExponentRange {
+  double low = 0.0;
+  double high = 0.0;
+};
+
+// Range of PowerLawExponent(y_a, y_b, x_a, x_b) when y_a and y_b are each known only to
+// +- y_half_unit: the exponent is monotone in each, so the ends are at (y_a -+ u, y_b +- u).
+// Preconditions (checked): those of PowerLawExponent, 0 <= y_half_unit < min(y_a, y_b).
+ExponentRange PowerLawExponentRange(double y_a, double y_b, double x_a, double x_b,
+                                    double y_half_unit);
+
+enum class BeamDimension { kLength, kWidth, kThickness };
+std::string_view Name(BeamDimension dimension);  // "length", "width", "thickness"
+
+// How the deflection scales with one beam dimension between two rows of Table 1 that differ
+// in that dimension only. Ratios and exponents are varied / reference.
+struct Table1Scaling {
+  BeamDimension dimension = BeamDimension::kLength;
+  std::string reference_name;  // the first row (S1)
+  std::string varied_name;     // the row that differs from it in this dimension only
+  double reference_mm = 0.0;   // the dimension in the reference row
+  double varied_mm = 0.0;      // ... and in the varied row
+  double predicted_ratio = 0.0;
+  double measured_ratio = 0.0;
+  double predicted_exponent = 0.0;        // d ln(deflection) / d ln(dimension), the chain
+  double measured_exponent = 0.0;         // the same from Table 1
+  ExponentRange measured_exponent_range;  // from the reading precision of both deflections
+  double exponent_uncertainty = 0.0;      // largest distance of that range's ends from measured
+  double departure = 0.0;                 // measured_exponent - predicted_exponent
+  bool departs = false;                   // |departure| > exponent_uncertainty
+};
+
+// One entry for every row after the first that differs from the first in exactly one of
+// L, W and h, in row order (rows that differ in none or in several are skipped): for
+// PredictTable1 thickness (S2), width (S3), length (S4). The predicted exponent uses the
+// rows' predicted deflections, the measured one the measured deflections, each uncertain by
+// +- deflection_half_unit_mm. Preconditions (checked, std::invalid_argument): deflections
+// and dimensions finite and > 0, 0 <= deflection_half_unit_mm < every measured deflection.
+std::vector<Table1Scaling> AnalyseTable1Scaling(
+    const std::vector<Table1Row>& rows,
+    double deflection_half_unit_mm = kSeedTable1DeflectionHalfUnit_mm);
+
 }  // namespace flexid::model

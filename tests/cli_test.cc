@@ -5,6 +5,7 @@
 #include <nlohmann/json.hpp>
 
 #include "cli_process.h"
+#include "model/physics.h"
 #include "scratch_dir.h"
 
 namespace flexid {
@@ -166,6 +167,83 @@ TEST_F(Cli, IdentifyRejectsBadRecordingsAndOptions) {
           " --structure physics --predict-geometry 0x8x2");
   EXPECT_EQ(r.exit_code, 2);
   EXPECT_NE(r.err.find("--predict-geometry"), std::string::npos) << r.err;
+}
+
+TEST_F(Cli, PhysicsTable1JsonGivesTheChainsExponentsAndTheDepartures) {
+  const auto r = Run("physics --table1 --json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const auto doc = nlohmann::json::parse(r.out);  // one document, nothing else on stdout
+  ASSERT_EQ(doc["dimensions"].size(), 3u);
+  // Expected exponents from PredictTable1's rows (S1 first), computed here by hand:
+  // ln(y_i/y_1)/ln(x_i/x_1) for the one dimension in which row i differs from S1.
+  const std::vector<model::Table1Row> rows = model::PredictTable1(model::SeedS1Parameters());
+  ASSERT_EQ(rows.size(), 4u);
+  const struct {
+    const char* dimension;
+    size_t row;
+    double x_ratio;
+  } expected[] = {{"thickness", 1, rows[1].h_mm / rows[0].h_mm},
+                  {"width", 2, rows[2].W_mm / rows[0].W_mm},
+                  {"length", 3, rows[3].L_mm / rows[0].L_mm}};
+  for (const auto& e : expected) {
+    const nlohmann::json* found = nullptr;
+    for (const auto& d : doc["dimensions"])
+      if (d["dimension"] == e.dimension) found = &d;
+    ASSERT_NE(found, nullptr) << e.dimension;
+    const auto& d = *found;
+    EXPECT_EQ(d["beams"][0], "S1");
+    EXPECT_EQ(d["beams"][1], rows[e.row].name);
+    const double ln_x = std::log(e.x_ratio);
+    EXPECT_NEAR(
+        d["predicted_exponent"].get<double>(),
+        std::log(rows[e.row].predicted_deflection_mm / rows[0].predicted_deflection_mm) / ln_x,
+        1e-12)
+        << e.dimension;
+    EXPECT_NEAR(
+        d["measured_exponent"].get<double>(),
+        std::log(rows[e.row].measured_deflection_mm / rows[0].measured_deflection_mm) / ln_x, 1e-12)
+        << e.dimension;
+    EXPECT_NEAR(d["predicted_ratio"].get<double>(), rows[e.row].predicted_ratio_to_s1, 1e-12);
+    EXPECT_NEAR(d["measured_ratio"].get<double>(), rows[e.row].measured_ratio_to_s1, 1e-12);
+    const double uncertainty = d["exponent_uncertainty"].get<double>();
+    EXPECT_GT(uncertainty, 0.0);
+    EXPECT_EQ(d["departs"].get<bool>(),
+              std::abs(d["measured_exponent"].get<double>() -
+                       d["predicted_exponent"].get<double>()) > uncertainty);
+    EXPECT_FALSE(d["explanation"].get<std::string>().empty());
+  }
+  // Table 1 departs in every dimension beyond its reading precision, thickness most.
+  ASSERT_EQ(doc["departing"].size(), 3u);
+  EXPECT_EQ(doc["departing"][0], "thickness");
+  ASSERT_EQ(doc["beams"].size(), 4u);
+  for (size_t i = 0; i < rows.size(); ++i) {
+    const auto p = model::WithGeometry(model::SeedS1Parameters(), 1e-3 * rows[i].L_mm,
+                                       1e-3 * rows[i].W_mm, 1e-3 * rows[i].h_mm);
+    EXPECT_NEAR(doc["beams"][i]["slowest_diffusion_time_constant_s"].get<double>(),
+                model::SlowestDiffusionTimeConstant_s(p), 1e-9);
+  }
+  EXPECT_TRUE(doc["seed_hold_s"].is_null());  // the seed does not state it
+  EXPECT_FALSE(doc["notes"].empty());
+  EXPECT_FALSE(doc.contains("truncation"));  // --table1 prints only the Table 1 analysis
+}
+
+TEST_F(Cli, PhysicsTable1HumanOutputIsATableAndFindings) {
+  const auto r = Run("physics --table1");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  for (const char* word : {"thickness", "width", "length", "S2/S1", "departs", "Findings",
+                           "Thickness departs most", "not stated"})
+    EXPECT_NE(r.out.find(word), std::string::npos) << word << "\n" << r.out;
+  EXPECT_EQ(r.out.find("Exact Eq. (11)"), std::string::npos) << r.out;
+}
+
+TEST_F(Cli, PhysicsTable1RejectsOptionsThatDoNotApply) {
+  for (const char* option : {"--terms", "--voltage"}) {
+    const auto r = Run(std::string("physics --table1 ") + option + " 3");
+    EXPECT_EQ(r.exit_code, 2) << option;
+    EXPECT_NE(r.err.find(option), std::string::npos) << r.err;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+    EXPECT_TRUE(r.out.empty()) << r.out;
+  }
 }
 
 }  // namespace

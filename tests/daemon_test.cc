@@ -186,6 +186,29 @@ TEST_F(DaemonEndToEnd, RecordsIdentifiesPredictsAndFlagsBackRelaxation) {
   bool flagged = false;
   for (const auto& a : listener_->alerts) flagged = flagged || a.kind == "back_relaxation";
   EXPECT_TRUE(flagged) << listener_->alerts.size() << " alerts, none of kind back_relaxation";
+
+  // Diagnosis of that stored trial against the active model names the effect, in the reply
+  // and in an alert of its kind.
+  listener_->alerts.clear();
+  const auto diagnosis = listener_->Call("diagnose", {{"actuator", "S1"}}, 60s);
+  ASSERT_TRUE(diagnosis.has_value()) << "no reply to diagnose";
+  ASSERT_EQ(diagnosis->status, flexid::rpc_reply_t::kOk) << diagnosis->error;
+  const auto found = nlohmann::json::parse(diagnosis->result_json);
+  EXPECT_EQ(found["verdict"], "back_relaxation") << found.dump(2);
+  EXPECT_EQ(found["model_version"], 1);
+  ASSERT_FALSE(found["findings"].empty());
+  EXPECT_LT(found["findings"][0]["heldout_rmse_after_mm"].get<double>(),
+            0.5 * found["findings"][0]["heldout_rmse_before_mm"].get<double>());
+  listener_->Pump(300ms);
+  bool named = false;
+  for (const auto& a : listener_->alerts)
+    named = named || (a.kind == "back_relaxation" && a.text.rfind("trial ", 0) == 0);
+  EXPECT_TRUE(named) << "no alert names the diagnosed effect";
+  // Bad arguments are refused with the argument named.
+  const auto bad = listener_->Call("diagnose", {{"actuator", "S1"}, {"trial", "x"}}, 10s);
+  ASSERT_TRUE(bad.has_value());
+  EXPECT_EQ(bad->status, flexid::rpc_reply_t::kBadRequest);
+  EXPECT_NE(bad->error.find("trial"), std::string::npos) << bad->error;
 }
 
 }  // namespace

@@ -5,6 +5,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <complex>
 #include <limits>
@@ -461,6 +462,228 @@ TEST(PhysicsTruncation, DefaultGridIsLogSpaced) {
   for (size_t i = 0; i < grid.size(); ++i)
     EXPECT_NEAR(grid[i] / std::pow(10.0, -4.0 + static_cast<double>(i)), 1.0, 1e-14);
   EXPECT_THROW(DefaultTruncationGrid_rad_s(1), std::invalid_argument);
+}
+
+// ---- Step response (Talbot inversion of Eq. 11) ----
+
+TEST(PhysicsStep, MatchesTheDiffusionSeriesWhenTheCellResistanceIsNegligible) {
+  // With R_s -> 0 the stored charge after a step is, term by term of the series of
+  // SEED-NOTES item 6, Q(t)/V = C_dl [1 + h/delta - sum_n (a/p_n) e^{-p_n t}] (sum a/p_n =
+  // h/delta), and K = 3 alpha Q/(W L h^2). The sum converges fast for t > 0.
+  PhysicalParameters p = OtherParameters();
+  p.R_s_ohm = 1e-9;  // R_s C_dl = 2e-12 s
+  const double a = 2.0 * p.D_m2_per_s / (p.h_m * p.delta_m);
+  const double tau_s = SlowestDiffusionTimeConstant_s(p);  // 365 s
+  for (double t_s : {1e-3 * tau_s, 0.01 * tau_s, 0.1 * tau_s, tau_s, 5.0 * tau_s}) {
+    double transient = 0.0;
+    for (int n = 200000; n >= 0; --n) {
+      const double odd = 2.0 * n + 1.0;
+      const double p_n = odd * odd * kPi * kPi * p.D_m2_per_s / (4.0 * p.h_m * p.h_m);
+      transient += a / p_n * std::exp(-p_n * t_s);
+    }
+    const double truth = CurvaturePerCharge_per_m_C(p) * p.C_dl_F *
+                         (1.0 + p.h_m / p.delta_m - transient) * 2.0;  // 2 V
+    // Observed agreement ~1e-11; the fixed Talbot rule with 24 nodes promises ~1e-9.
+    EXPECT_NEAR(StepCurvature_per_m(p, 2.0, t_s) / truth, 1.0, 1e-8) << t_s;
+  }
+}
+
+TEST(PhysicsStep, IsAnRcChargeWhenTheGelStoresNothing) {
+  // delta >> h: Z(s) = (h/delta) tanh(x)/x <= 1.5e-6, so C_eff = C_dl to that accuracy and
+  // the cell is R_s in series with C_dl: K(t) = 3 alpha C_dl V (1 - e^{-t/(R_s C_dl)})/(W L h^2).
+  PhysicalParameters p = OtherParameters();
+  p.delta_m = 1e3;
+  const double rc_s = p.R_s_ohm * p.C_dl_F;  // 0.24 s
+  for (double t_s : {0.2 * rc_s, rc_s, 4.0 * rc_s}) {
+    const double truth =
+        CurvaturePerCharge_per_m_C(p) * p.C_dl_F * 3.0 * (1.0 - std::exp(-t_s / rc_s));
+    EXPECT_NEAR(StepCurvature_per_m(p, 3.0, t_s) / truth, 1.0, 1e-6) << t_s;
+  }
+}
+
+TEST(PhysicsStep, RisesMonotonicallyToTheDcCurvature) {
+  const PhysicalParameters p = SeedS1Parameters();
+  const double tau_s = SlowestDiffusionTimeConstant_s(p);
+  double previous = 0.0;
+  for (double t_s = 1e-3; t_s < 30.0 * tau_s; t_s *= 1.5) {
+    const double K = StepCurvature_per_m(p, 5.0, t_s);
+    EXPECT_GT(K, previous) << t_s;
+    previous = K;
+  }
+  EXPECT_NEAR(StepCurvature_per_m(p, 5.0, 30.0 * tau_s) / (DcCurvaturePerVolt(p) * 5.0), 1.0, 1e-9);
+  EXPECT_NEAR(StepCurvature_per_m(p, -5.0, tau_s), -StepCurvature_per_m(p, 5.0, tau_s), 1e-15);
+  EXPECT_THROW(StepCurvature_per_m(p, 5.0, 0.0), std::invalid_argument);
+  EXPECT_THROW(StepCurvature_per_m(p, 5.0, -1.0), std::invalid_argument);
+  EXPECT_THROW(StepCurvature_per_m(p, std::nan(""), 1.0), std::invalid_argument);
+  EXPECT_THROW(StepCurvature_per_m(PhysicalParameters{}, 5.0, 1.0), std::invalid_argument);
+}
+
+TEST(PhysicsTable1, AfterHoldTendsToSteadyAndToChargeLimitedScalingForShortHolds) {
+  const PhysicalParameters s1 = SeedS1Parameters();
+  const std::vector<Table1Row> steady = PredictTable1(s1);
+  const std::vector<Table1Row> long_hold =
+      PredictTable1AfterHold(s1, 100.0 * SlowestDiffusionTimeConstant_s(s1));
+  ASSERT_EQ(long_hold.size(), steady.size());
+  for (size_t i = 0; i < steady.size(); ++i) {
+    EXPECT_NEAR(long_hold[i].predicted_deflection_mm / steady[i].predicted_deflection_mm, 1.0,
+                1e-9);
+    EXPECT_EQ(long_hold[i].measured_deflection_mm, steady[i].measured_deflection_mm);
+  }
+  // By hand, for K L << 1 (so y = K L^2/2):
+  // t = 1 s << h^2/D (100 s) but sqrt(D t) = 0.13 mm << h: S1 and S2 (same face) have stored
+  // the same charge in a surface layer, so K ~ 1/h^2 and the thickness exponent is -2.
+  const std::vector<Table1Scaling> one_second =
+      AnalyseTable1Scaling(PredictTable1AfterHold(s1, 1.0));
+  ASSERT_EQ(one_second.size(), 3u);
+  EXPECT_EQ(one_second[0].dimension, BeamDimension::kThickness);
+  EXPECT_NEAR(one_second[0].predicted_exponent, -2.0, 1e-3);
+  // t = 1e-5 s << R_s C_dl (3.2 ms): every beam has drawn the same charge V t / R_s through
+  // the cell, so K ~ 1/(W L h^2): exponents -2 (h), -1 (W) and 2 - 1 = 1 (L), up to
+  // t/(2 R_s C_dl) ~ 0.3 %.
+  const std::vector<Table1Scaling> cell_limited =
+      AnalyseTable1Scaling(PredictTable1AfterHold(s1, 1e-5));
+  ASSERT_EQ(cell_limited.size(), 3u);
+  EXPECT_NEAR(cell_limited[0].predicted_exponent, -2.0, 1e-3);
+  EXPECT_EQ(cell_limited[1].dimension, BeamDimension::kWidth);
+  EXPECT_NEAR(cell_limited[1].predicted_exponent, -1.0, 0.01);
+  EXPECT_EQ(cell_limited[2].dimension, BeamDimension::kLength);
+  EXPECT_NEAR(cell_limited[2].predicted_exponent, 1.0, 0.01);
+  EXPECT_THROW(PredictTable1AfterHold(s1, 0.0), std::invalid_argument);
+}
+
+// ---- Power laws and the Table 1 scaling analysis ----
+
+TEST(PhysicsScaling, PowerLawExponentOfSyntheticPowerLaws) {
+  EXPECT_NEAR(PowerLawExponent(3.0 * std::pow(2.0, 1.5), 3.0 * std::pow(5.0, 1.5), 2.0, 5.0), 1.5,
+              1e-14);
+  EXPECT_NEAR(PowerLawExponent(4.0, 1.0, 1.0, 2.0), -2.0, 1e-15);
+  EXPECT_NEAR(PowerLawExponent(1.0, 4.0, 2.0, 1.0), -2.0, 1e-15);  // order of the points
+  EXPECT_EQ(PowerLawExponent(7.0, 7.0, 1.0, 3.0), 0.0);
+  EXPECT_THROW(PowerLawExponent(1.0, 2.0, 3.0, 3.0), std::invalid_argument);
+  EXPECT_THROW(PowerLawExponent(0.0, 2.0, 1.0, 3.0), std::invalid_argument);
+  EXPECT_THROW(PowerLawExponent(1.0, std::nan(""), 1.0, 3.0), std::invalid_argument);
+}
+
+TEST(PhysicsScaling, ExponentRangeEvaluatesTheRatioAtTheEnds) {
+  // y from 4 to 2 as x doubles, each y +- 0.1: by hand the ends are ln(2.1/3.9)/ln 2 and
+  // ln(1.9/4.1)/ln 2.
+  const ExponentRange range = PowerLawExponentRange(4.0, 2.0, 1.0, 2.0, 0.1);
+  EXPECT_NEAR(range.low, std::log(1.9 / 4.1) / std::log(2.0), 1e-15);
+  EXPECT_NEAR(range.high, std::log(2.1 / 3.9) / std::log(2.0), 1e-15);
+  // x decreasing: ln(x_b/x_a) < 0 swaps which end is low.
+  const ExponentRange swapped = PowerLawExponentRange(2.0, 4.0, 2.0, 1.0, 0.1);
+  EXPECT_NEAR(swapped.low, std::log(4.1 / 1.9) / std::log(0.5), 1e-15);
+  EXPECT_NEAR(swapped.high, std::log(3.9 / 2.1) / std::log(0.5), 1e-15);
+  const ExponentRange exact = PowerLawExponentRange(4.0, 2.0, 1.0, 2.0, 0.0);
+  EXPECT_EQ(exact.low, -1.0);
+  EXPECT_EQ(exact.high, -1.0);
+  EXPECT_THROW(PowerLawExponentRange(4.0, 2.0, 1.0, 2.0, 2.0), std::invalid_argument);
+  EXPECT_THROW(PowerLawExponentRange(4.0, 2.0, 1.0, 2.0, -0.1), std::invalid_argument);
+}
+
+Table1Row SyntheticRow(std::string name, double L_mm, double W_mm, double h_mm, double predicted_mm,
+                       double measured_mm) {
+  Table1Row row;
+  row.name = std::move(name);
+  row.L_mm = L_mm;
+  row.W_mm = W_mm;
+  row.h_mm = h_mm;
+  row.predicted_deflection_mm = predicted_mm;
+  row.measured_deflection_mm = measured_mm;
+  return row;
+}
+
+TEST(PhysicsScaling, AnalyseTable1ScalingOnSyntheticRows) {
+  const std::vector<Table1Row> rows = {
+      SyntheticRow("R", 10.0, 5.0, 1.0, 2.0, 2.0),
+      SyntheticRow("H", 10.0, 5.0, 2.0, 1.0, 1.5),     // thickness only
+      SyntheticRow("LW", 20.0, 10.0, 1.0, 8.0, 8.0),   // two dimensions: skipped
+      SyntheticRow("W", 10.0, 2.5, 1.0, 2.0, 2.004),   // width only, within reading
+      SyntheticRow("same", 10.0, 5.0, 1.0, 2.0, 2.0),  // none: skipped
+  };
+  const std::vector<Table1Scaling> scaling = AnalyseTable1Scaling(rows, 0.005);
+  ASSERT_EQ(scaling.size(), 2u);
+
+  const Table1Scaling& h = scaling[0];
+  EXPECT_EQ(h.dimension, BeamDimension::kThickness);
+  EXPECT_EQ(h.reference_name, "R");
+  EXPECT_EQ(h.varied_name, "H");
+  EXPECT_EQ(h.reference_mm, 1.0);
+  EXPECT_EQ(h.varied_mm, 2.0);
+  EXPECT_NEAR(h.predicted_ratio, 0.5, 1e-15);
+  EXPECT_NEAR(h.measured_ratio, 0.75, 1e-15);
+  EXPECT_NEAR(h.predicted_exponent, -1.0, 1e-15);
+  EXPECT_NEAR(h.measured_exponent, std::log(0.75) / std::log(2.0), 1e-15);  // -0.415
+  const double h_low = std::log(1.495 / 2.005) / std::log(2.0);
+  const double h_high = std::log(1.505 / 1.995) / std::log(2.0);
+  EXPECT_NEAR(h.measured_exponent_range.low, h_low, 1e-15);
+  EXPECT_NEAR(h.measured_exponent_range.high, h_high, 1e-15);
+  EXPECT_NEAR(h.exponent_uncertainty,
+              std::max(h.measured_exponent - h_low, h_high - h.measured_exponent), 1e-15);
+  EXPECT_NEAR(h.departure, std::log(0.75) / std::log(2.0) + 1.0, 1e-15);
+  EXPECT_TRUE(h.departs);
+
+  // 2.004 vs 2.0 read to +-0.005: the range ln((2.004 -+ 0.005)/(2.0 +- 0.005))/ln(0.5)
+  // contains the predicted 0, so no departure.
+  const Table1Scaling& w = scaling[1];
+  EXPECT_EQ(w.dimension, BeamDimension::kWidth);
+  EXPECT_EQ(w.varied_name, "W");
+  EXPECT_EQ(w.predicted_exponent, 0.0);
+  EXPECT_NEAR(w.measured_exponent, std::log(1.002) / std::log(0.5), 1e-15);
+  EXPECT_LT(w.measured_exponent_range.low, 0.0);
+  EXPECT_GT(w.measured_exponent_range.high, 0.0);
+  EXPECT_FALSE(w.departs);
+
+  EXPECT_TRUE(AnalyseTable1Scaling({}).empty());
+  EXPECT_THROW(AnalyseTable1Scaling(rows, 1.5), std::invalid_argument);  // not below H's 1.5
+  EXPECT_EQ(Name(BeamDimension::kLength), "length");
+  EXPECT_EQ(Name(BeamDimension::kWidth), "width");
+  EXPECT_EQ(Name(BeamDimension::kThickness), "thickness");
+}
+
+TEST(PhysicsScaling, SeedTable1DepartsInEveryDimensionBeyondReadingPrecision) {
+  const std::vector<Table1Row> rows = PredictTable1(SeedS1Parameters());
+  const std::vector<Table1Scaling> scaling = AnalyseTable1Scaling(rows);
+  ASSERT_EQ(scaling.size(), 3u);
+  // Hand calculation from the paper's numbers (S1 40/8/2 5.92, S2 h = 1 8.27, S3 W = 4 5.38,
+  // S4 L = 20 1.83), each deflection +-0.005 mm.
+  const struct {
+    BeamDimension dimension;
+    const char* varied;
+    size_t row;
+    double x_ratio, measured_mm;
+  } expected[] = {{BeamDimension::kThickness, "S2", 1, 0.5, 8.27},
+                  {BeamDimension::kWidth, "S3", 2, 0.5, 5.38},
+                  {BeamDimension::kLength, "S4", 3, 0.5, 1.83}};
+  for (size_t i = 0; i < 3; ++i) {
+    const Table1Scaling& s = scaling[i];
+    const auto& e = expected[i];
+    EXPECT_EQ(s.dimension, e.dimension);
+    EXPECT_EQ(s.reference_name, "S1");
+    EXPECT_EQ(s.varied_name, e.varied);
+    const double ln_x = std::log(e.x_ratio);
+    EXPECT_NEAR(s.measured_exponent, std::log(e.measured_mm / 5.92) / ln_x, 1e-14);
+    EXPECT_NEAR(
+        s.predicted_exponent,
+        std::log(rows[e.row].predicted_deflection_mm / rows[0].predicted_deflection_mm) / ln_x,
+        1e-14);
+    const double one = std::log((e.measured_mm + 0.005) / (5.92 - 0.005)) / ln_x;
+    const double other = std::log((e.measured_mm - 0.005) / (5.92 + 0.005)) / ln_x;
+    EXPECT_NEAR(
+        s.exponent_uncertainty,
+        std::max(std::abs(one - s.measured_exponent), std::abs(other - s.measured_exponent)),
+        1e-14);
+    EXPECT_TRUE(s.departs) << Name(s.dimension);
+  }
+  // The sizes quoted in the report: thickness -0.48 vs -0.97 (+-0.002), width 0.14 vs 0
+  // (+-0.003), length 1.69 vs 1.99 (+-0.005).
+  EXPECT_NEAR(scaling[0].measured_exponent, -0.482, 0.001);
+  EXPECT_NEAR(scaling[0].predicted_exponent, -0.969, 0.001);
+  EXPECT_LT(scaling[0].exponent_uncertainty, 0.0025);
+  EXPECT_NEAR(scaling[1].measured_exponent, 0.138, 0.001);
+  EXPECT_NEAR(scaling[2].measured_exponent, 1.694, 0.001);
+  EXPECT_NEAR(scaling[2].predicted_exponent, 1.992, 0.001);
+  EXPECT_LT(scaling[2].exponent_uncertainty, 0.006);
 }
 
 }  // namespace

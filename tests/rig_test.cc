@@ -26,6 +26,7 @@
 #include "clients/rig/runner.h"
 #include "model/errors.h"
 #include "model/presets.h"
+#include "model/recording.h"
 #include "model/simulate.h"
 #include "scratch_dir.h"
 
@@ -149,7 +150,18 @@ TEST(Protocol, EveryErrorIsOneClearLine) {
        "(got \"0\")"},
       {"square:level=5,period=10,cycles=1,dwell=3",
        "protocol \"square:level=5,period=10,cycles=1,dwell=3\": unknown key \"dwell\" (square "
-       "takes level, period, duty and cycles)"},
+       "takes level, period, duty, cycles and polarity)"},
+      {"square:level=5,period=10,cycles=1,polarity=bipolar",
+       "protocol \"square:level=5,period=10,cycles=1,polarity=bipolar\": polarity must be same or "
+       "alternate (got \"bipolar\")"},
+      {"square:level=5,period=10,cycles=1,polarity=alternate,polarity=same",
+       "protocol \"square:level=5,period=10,cycles=1,polarity=alternate,polarity=same\": key "
+       "\"polarity\" given twice"},
+      {"square:level=5,period=10,polarity=alternate",
+       "protocol \"square:level=5,period=10,polarity=alternate\": missing key \"cycles\""},
+      {"step:level=2,duration=5,polarity=alternate",
+       "protocol \"step:level=2,duration=5,polarity=alternate\": unknown key \"polarity\" (step "
+       "takes level, duration and delay)"},
       {"staircase:dwell=10", "protocol \"staircase:dwell=10\": missing key \"levels\""},
       {"staircase:levels=2/4", "protocol \"staircase:levels=2/4\": missing key \"dwell\""},
       {"staircase:levels=2/x/6,dwell=10",
@@ -191,6 +203,31 @@ TEST(VoltageAt, SquareWaveFollowsDutyAndPeriodThenRests) {
   int on = 0;
   for (int k = 0; k < 20000; ++k) on += VoltageAt(p, k / 1000.0) == 5.0 ? 1 : 0;
   EXPECT_EQ(on, 6000);
+}
+
+TEST(Protocol, SquarePolarityIsSameUnlessAlternate) {
+  EXPECT_FALSE(ParseProtocol("square:level=5,period=220,cycles=5").alternate_polarity);
+  EXPECT_FALSE(
+      ParseProtocol("square:level=5,period=220,cycles=5,polarity=same").alternate_polarity);
+  const Protocol p = ParseProtocol("square:polarity=alternate,level=5,period=220,cycles=6");
+  EXPECT_TRUE(p.alternate_polarity);
+  EXPECT_EQ(p.level_V, 5.0);
+  EXPECT_EQ(ProtocolDuration(p), 1320.0);
+}
+
+TEST(VoltageAt, AlternatePolaritySquareFlipsEverySecondPeriod) {
+  const Protocol p = ParseProtocol("square:level=5,period=10,duty=0.3,cycles=3,polarity=alternate");
+  const std::vector<std::pair<double, double>> expected = {
+      {0.0, 5},   {2.99, 5}, {3.0, 0},   {9.99, 0}, {10.0, -5}, {12.99, -5}, {13.0, 0},
+      {19.99, 0}, {20.0, 5}, {22.99, 5}, {23.0, 0}, {30.0, 0},  {1000.0, 0}, {-1.0, 0}};
+  for (const auto& [t_s, voltage_V] : expected) EXPECT_EQ(VoltageAt(p, t_s), voltage_V) << t_s;
+  // A negative level starts negative.
+  const Protocol negative = ParseProtocol("square:level=-2,period=10,cycles=2,polarity=alternate");
+  EXPECT_EQ(VoltageAt(negative, 1.0), -2.0);
+  EXPECT_EQ(VoltageAt(negative, 11.0), 2.0);
+  // Without the option every period goes to +level (unchanged behaviour).
+  const Protocol same = ParseProtocol("square:level=5,period=10,cycles=2");
+  EXPECT_EQ(VoltageAt(same, 11.0), 5.0);
 }
 
 TEST(VoltageAt, StaircaseStepsThroughTheLevelsThenRestsOneDwell) {
@@ -237,13 +274,125 @@ TEST(Effects, BackRelaxationDefaultsAndParameters) {
             "back_relaxation:fraction=0.25,tau=120.5");
   EXPECT_EQ(ParseEffect("back_relaxation:fraction=1")->Describe(),
             "back_relaxation:fraction=1,tau=60");
-  EXPECT_EQ(rig::EffectNames(), std::vector<std::string>{"back_relaxation"});
+  EXPECT_EQ(rig::EffectNames(),
+            (std::vector<std::string>{"back_relaxation", "cycle_degradation", "hysteresis",
+                                      "electrolysis_saturation", "sensor_drift",
+                                      "polarity_asymmetry", "dead_zone"}));
+}
+
+TEST(Effects, EveryEffectHasDefaultsAndTakesItsParameters) {
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"cycle_degradation", "cycle_degradation:loss=0.2,charge=5000"},
+      {"cycle_degradation:charge=2750,loss=0.05", "cycle_degradation:loss=0.05,charge=2750"},
+      {"cycle_degradation:loss=0", "cycle_degradation:loss=0,charge=5000"},
+      {"hysteresis", "hysteresis:width=0.5"},
+      {"hysteresis:width=0", "hysteresis:width=0"},
+      {"electrolysis_saturation", "electrolysis_saturation:onset=4,slope=0.3"},
+      {"electrolysis_saturation:slope=1,onset=5", "electrolysis_saturation:onset=5,slope=1"},
+      {"electrolysis_saturation:slope=0", "electrolysis_saturation:onset=4,slope=0"},
+      {"sensor_drift", "sensor_drift:rate=0.001,warmup=0,tau=600"},
+      {"sensor_drift:rate=-2e-05,warmup=-0.1,tau=30",
+       "sensor_drift:rate=-2e-05,warmup=-0.1,tau=30"},
+      {"polarity_asymmetry", "polarity_asymmetry:ratio=0.7"},
+      {"polarity_asymmetry:ratio=2", "polarity_asymmetry:ratio=2"},
+      {"dead_zone", "dead_zone:threshold=0.5"},
+      {"dead_zone:threshold=0", "dead_zone:threshold=0"},
+  };
+  for (const auto& [spec, canonical] : cases) EXPECT_EQ(ParseEffect(spec)->Describe(), canonical);
+  // Every listed name parses with its defaults, and Describe reads back to itself.
+  for (const std::string& name : rig::EffectNames()) {
+    const std::string canonical = ParseEffect(name)->Describe();
+    EXPECT_EQ(canonical.rfind(name + ":", 0), 0u) << canonical;
+    EXPECT_EQ(ParseEffect(canonical)->Describe(), canonical);
+  }
+}
+
+// The hand computations below call the effect directly on a few samples; the Rig tests
+// further down check the same equations through the whole sample stream.
+
+// Eq. (3) with loss = 0.5, charge = 4 V*s, i.e. the gain halves per 4 V*s: |v| = 4, 4, 0, 4
+// V held for 1 s each gives Q = 0, 4, 8, 8, 12 V*s at t = 0 .. 4 s and factors 1, 1/2, 1/4,
+// 1/4, 1/8.
+TEST(Effects, CycleDegradationLosesGainWithTheChargeMoved) {
+  const auto effect = ParseEffect("cycle_degradation:loss=0.5,charge=4");
+  const std::vector<double> applied_V = {4.0, -4.0, 0.0, 4.0, 4.0};
+  const std::vector<double> expected_V = {4.0, -2.0, 0.0, 1.0, 0.5};
+  for (size_t k = 0; k < applied_V.size(); ++k)
+    EXPECT_NEAR(effect->DriveVoltage(static_cast<double>(k), applied_V[k]), expected_V[k], 1e-15)
+        << k;
+  // Uneven steps: 2 V for 0.5 s then 1.5 s moves 1 + 3 = 4 V*s.
+  const auto uneven = ParseEffect("cycle_degradation:loss=0.5,charge=4");
+  EXPECT_EQ(uneven->DriveVoltage(0.0, 2.0), 2.0);
+  EXPECT_NEAR(uneven->DriveVoltage(0.5, 2.0), 2.0 * std::pow(0.5, 0.25), 1e-15);
+  EXPECT_NEAR(uneven->DriveVoltage(2.0, 2.0), 1.0, 1e-15);
+  // loss = 0: nothing changes, however much charge.
+  const auto none = ParseEffect("cycle_degradation:loss=0,charge=1");
+  for (int k = 0; k < 100; ++k) ASSERT_EQ(none->DriveVoltage(k, 8.0), 8.0);
+}
+
+// Eq. (4), width 0.5 mm, on a triangle 0 1 2 3 2 1 0 1 mm: the output lags 0.5 mm behind
+// on the way up, holds while the input turns, lags 0.5 mm above on the way down.
+TEST(Effects, HysteresisIsAPlayOperatorOnATriangle) {
+  const auto effect = ParseEffect("hysteresis:width=0.5");
+  const std::vector<double> input_mm = {0, 1, 2, 3, 2, 1, 0, 1};
+  const std::vector<double> expected_mm = {0, 0.5, 1.5, 2.5, 2.5, 1.5, 0.5, 0.5};
+  for (size_t k = 0; k < input_mm.size(); ++k)
+    EXPECT_EQ(effect->Deflection(0.1 * static_cast<double>(k), 0.0, input_mm[k]), expected_mm[k])
+        << k;
+  // out_0 = y_0, wherever the stream starts; width 0 passes everything through.
+  EXPECT_EQ(ParseEffect("hysteresis:width=0.5")->Deflection(0.0, 0.0, 7.25), 7.25);
+  const auto zero = ParseEffect("hysteresis:width=0");
+  for (const double y_mm : input_mm) EXPECT_EQ(zero->Deflection(0.0, 0.0, y_mm), y_mm);
+}
+
+// Eq. (5), onset 4 V, slope 0.3: |v| <= 4 passes; 6 V -> 4 + 0.3 * 2 = 4.6; 8 V -> 5.2.
+TEST(Effects, ElectrolysisSaturationCompressesAboveTheOnset) {
+  const auto effect = ParseEffect("electrolysis_saturation:onset=4,slope=0.3");
+  const std::vector<std::pair<double, double>> cases = {
+      {0.0, 0.0}, {2.0, 2.0}, {4.0, 4.0}, {6.0, 4.6}, {8.0, 5.2}, {-8.0, -5.2}, {-3.0, -3.0}};
+  for (const auto& [applied_V, drive_V] : cases)
+    EXPECT_NEAR(effect->DriveVoltage(0.0, applied_V), drive_V, 1e-15) << applied_V;
+  EXPECT_EQ(ParseEffect("electrolysis_saturation:onset=4,slope=0")->DriveVoltage(0.0, 9.0), 4.0);
+  EXPECT_EQ(ParseEffect("electrolysis_saturation:onset=4,slope=1")->DriveVoltage(0.0, 9.0), 9.0);
+}
+
+// Eq. (6), rate 0.001 mm/s, warm-up 0.5 mm with tau 10 s: at t = 10 s the offset is
+// 0.01 + 0.5 (1 - 1/e) mm whatever the deflection and the voltage.
+TEST(Effects, SensorDriftAddsARampAndAWarmUp) {
+  const auto effect = ParseEffect("sensor_drift:rate=0.001,warmup=0.5,tau=10");
+  EXPECT_EQ(effect->Deflection(0.0, 3.0, 1.25), 1.25);
+  EXPECT_NEAR(effect->Deflection(10.0, 3.0, 1.25), 1.25 + 0.01 + 0.5 * (1.0 - std::exp(-1.0)),
+              1e-15);
+  EXPECT_NEAR(effect->Deflection(1000.0, -8.0, 0.0), 1.0 + 0.5, 1e-12);  // warm-up settled
+  const auto down = ParseEffect("sensor_drift:rate=-0.002");
+  EXPECT_NEAR(down->Deflection(50.0, 0.0, 0.0), -0.1, 1e-15);
+}
+
+// Eq. (7), ratio 0.7: positive voltages pass, negative ones act at 0.7 of themselves.
+TEST(Effects, PolarityAsymmetryScalesNegativeVoltagesOnly) {
+  const auto effect = ParseEffect("polarity_asymmetry:ratio=0.7");
+  EXPECT_EQ(effect->DriveVoltage(0.0, 3.0), 3.0);
+  EXPECT_EQ(effect->DriveVoltage(0.0, 0.0), 0.0);
+  EXPECT_NEAR(effect->DriveVoltage(0.0, -3.0), -2.1, 1e-15);
+  EXPECT_NEAR(ParseEffect("polarity_asymmetry:ratio=1.5")->DriveVoltage(0.0, -2.0), -3.0, 1e-15);
+}
+
+// Eq. (8), threshold 0.5 V.
+TEST(Effects, DeadZoneRemovesTheThreshold) {
+  const auto effect = ParseEffect("dead_zone:threshold=0.5");
+  const std::vector<std::pair<double, double>> cases = {{0.0, 0.0}, {0.3, 0.0}, {-0.3, 0.0},
+                                                        {0.5, 0.0}, {2.0, 1.5}, {-2.0, -1.5}};
+  for (const auto& [applied_V, drive_V] : cases)
+    EXPECT_EQ(effect->DriveVoltage(0.0, applied_V), drive_V) << applied_V;
 }
 
 TEST(Effects, EveryErrorIsOneClearLine) {
   const std::vector<std::pair<std::string, std::string>> cases = {
       {"", "effect \"\": empty specification (expected NAME[:KEY=VALUE,...])"},
-      {"wobble", "effect \"wobble\": unknown effect \"wobble\" (expected back_relaxation)"},
+      {"wobble",
+       "effect \"wobble\": unknown effect \"wobble\" (expected back_relaxation, "
+       "cycle_degradation, hysteresis, electrolysis_saturation, sensor_drift, "
+       "polarity_asymmetry or dead_zone)"},
       {"back_relaxation:fraction=1.5",
        "effect \"back_relaxation:fraction=1.5\": fraction must be >= 0 and <= 1 (got 1.5)"},
       {"back_relaxation:fraction=-0.1",
@@ -255,6 +404,42 @@ TEST(Effects, EveryErrorIsOneClearLine) {
        "effect \"back_relaxation:tau=60,size=2\": unknown key \"size\" (back_relaxation takes "
        "fraction and tau)"},
       {"back_relaxation:tau", "effect \"back_relaxation:tau\": expected KEY=VALUE, got \"tau\""},
+      {"cycle_degradation:loss=1",
+       "effect \"cycle_degradation:loss=1\": loss must be >= 0 and < 1 (got 1)"},
+      {"cycle_degradation:loss=-0.1",
+       "effect \"cycle_degradation:loss=-0.1\": loss must be >= 0 and < 1 (got -0.1)"},
+      {"cycle_degradation:charge=0",
+       "effect \"cycle_degradation:charge=0\": charge must be > 0 V*s (got 0)"},
+      {"cycle_degradation:charge=nan",
+       "effect \"cycle_degradation:charge=nan\": charge is not a finite number: \"nan\""},
+      {"cycle_degradation:cycles=3",
+       "effect \"cycle_degradation:cycles=3\": unknown key \"cycles\" (cycle_degradation takes "
+       "loss and charge)"},
+      {"hysteresis:width=-0.1",
+       "effect \"hysteresis:width=-0.1\": width must be >= 0 mm (got -0.1)"},
+      {"hysteresis:width=0.1,tau=3",
+       "effect \"hysteresis:width=0.1,tau=3\": unknown key \"tau\" (hysteresis takes width)"},
+      {"electrolysis_saturation:onset=0",
+       "effect \"electrolysis_saturation:onset=0\": onset must be > 0 V (got 0)"},
+      {"electrolysis_saturation:slope=1.2",
+       "effect \"electrolysis_saturation:slope=1.2\": slope must be >= 0 and <= 1 (got 1.2)"},
+      {"electrolysis_saturation:slope=-0.5",
+       "effect \"electrolysis_saturation:slope=-0.5\": slope must be >= 0 and <= 1 (got -0.5)"},
+      {"sensor_drift:tau=0", "effect \"sensor_drift:tau=0\": tau must be > 0 s (got 0)"},
+      {"sensor_drift:rate=inf",
+       "effect \"sensor_drift:rate=inf\": rate is not a finite number: \"inf\""},
+      {"sensor_drift:warmup=1mm",
+       "effect \"sensor_drift:warmup=1mm\": warmup is not a finite number: \"1mm\""},
+      {"polarity_asymmetry:ratio=0",
+       "effect \"polarity_asymmetry:ratio=0\": ratio must be > 0 and <= 2 (got 0)"},
+      {"polarity_asymmetry:ratio=2.5",
+       "effect \"polarity_asymmetry:ratio=2.5\": ratio must be > 0 and <= 2 (got 2.5)"},
+      {"polarity_asymmetry:ratio=-1",
+       "effect \"polarity_asymmetry:ratio=-1\": ratio must be > 0 and <= 2 (got -1)"},
+      {"dead_zone:threshold=-1",
+       "effect \"dead_zone:threshold=-1\": threshold must be >= 0 V (got -1)"},
+      {"dead_zone:level=1",
+       "effect \"dead_zone:level=1\": unknown key \"level\" (dead_zone takes threshold)"},
   };
   for (const auto& [spec, message] : cases) EXPECT_EQ(EffectError(spec), message) << spec;
 }
@@ -453,6 +638,94 @@ TEST(Rig, DriveVoltageEffectsChangeWhatTheModelSees) {
   ASSERT_EQ(halved.size(), 800u);
   EXPECT_EQ(halved[0].voltage_V, 8.0);
   for (size_t k = 0; k < halved.size(); ++k) ASSERT_EQ(halved[k].deflection_mm, expected_mm[k]);
+}
+
+// Each effect through the whole stream, on the pure gain of 2 mm/V so that the deflection
+// is 2 * drive (drive side) or the effect of 2 * voltage (output side), at 10 Hz.
+
+// Eq. (3) with the voltage held between samples: Q(t_k) = 0.1 s * sum_{j<k} |v_j|. A square
+// wave of 2 V, 10 s on and 10 s off, 3 periods: only the on-samples move charge, 2 V * 0.1 s
+// each; 60 V*s in all, so the gain ends at 0.5^(60 / 20) = 1/8.
+TEST(Rig, CycleDegradationFollowsTheChargeOfTheOnPeriods) {
+  const auto samples = RunStream(GainModel(), "square:level=2,period=20,cycles=3",
+                                 OneEffect(ParseEffect("cycle_degradation:loss=0.5,charge=20")));
+  ASSERT_EQ(samples.size(), 600u);
+  for (size_t k = 0; k < samples.size(); ++k) {
+    const size_t on_samples_before = (k / 200) * 100 + std::min<size_t>(k % 200, 100);
+    const double charge_Vs = 2.0 * 0.1 * static_cast<double>(on_samples_before);
+    const double expected_mm = 2.0 * samples[k].voltage_V * std::pow(0.5, charge_Vs / 20.0);
+    ASSERT_NEAR(samples[k].deflection_mm, expected_mm, 1e-12) << k;
+  }
+  EXPECT_NEAR(samples[400].deflection_mm, 4.0 * 0.25, 1e-12);  // third pulse: 40 V*s moved
+  EXPECT_EQ(samples[599].voltage_V, 0.0);
+}
+
+// Eq. (4) with width 0.25 mm on the steps y = 1, 3, 1, 0 mm (staircase 0.5/1.5/0.5 V):
+// out = 1 (out_0 = y_0), 3 - 0.25 (rising), 1 + 0.25 (falling), 0.25 (still above rest).
+TEST(Rig, HysteresisLagsTheStepsByItsWidth) {
+  const auto samples = RunStream(GainModel(), "staircase:levels=0.5/1.5/0.5,dwell=1",
+                                 OneEffect(ParseEffect("hysteresis:width=0.25")));
+  ASSERT_EQ(samples.size(), 40u);
+  const std::vector<double> expected_mm = {1.0, 2.75, 1.25, 0.25};
+  for (size_t k = 0; k < samples.size(); ++k)
+    ASSERT_NEAR(samples[k].deflection_mm, expected_mm[k / 10], 1e-12) << k;
+}
+
+// Eq. (5), onset 4 V, slope 0.3, on a staircase 2/4/6/8 V: drive 2, 4, 4.6, 5.2 V.
+TEST(Rig, ElectrolysisSaturationCompressesTheUpperSteps) {
+  const auto samples =
+      RunStream(GainModel(), "staircase:levels=2/4/6/8,dwell=1",
+                OneEffect(ParseEffect("electrolysis_saturation:onset=4,slope=0.3")));
+  ASSERT_EQ(samples.size(), 50u);
+  const std::vector<double> expected_mm = {4.0, 8.0, 9.2, 10.4, 0.0};
+  for (size_t k = 0; k < samples.size(); ++k)
+    ASSERT_NEAR(samples[k].deflection_mm, expected_mm[k / 10], 1e-12) << k;
+  EXPECT_EQ(samples[35].voltage_V, 8.0);  // the bus still sees the applied voltage
+}
+
+// Eq. (6) on a constant 2 mm: out(t) = 2 + rate t + warmup (1 - exp(-t / tau)).
+TEST(Rig, SensorDriftMovesTheBaselineWhateverTheInput) {
+  const auto samples =
+      RunStream(GainModel(), "hold:level=1,duration=100",
+                OneEffect(ParseEffect("sensor_drift:rate=2e-3,warmup=0.3,tau=20")));
+  ASSERT_EQ(samples.size(), 1000u);
+  for (size_t k = 0; k < samples.size(); ++k) {
+    const double t_s = static_cast<double>(k) / 10.0;
+    ASSERT_NEAR(samples[k].deflection_mm, 2.0 + 2e-3 * t_s + 0.3 * (1.0 - std::exp(-t_s / 20.0)),
+                1e-12)
+        << k;
+  }
+}
+
+// Eq. (7), ratio 0.7, on an alternating square of 5 V: +10 mm, then -7 mm.
+TEST(Rig, PolarityAsymmetryWeakensTheNegativePulses) {
+  const auto samples = RunStream(GainModel(), "square:level=5,period=2,cycles=2,polarity=alternate",
+                                 OneEffect(ParseEffect("polarity_asymmetry:ratio=0.7")));
+  ASSERT_EQ(samples.size(), 40u);
+  const std::vector<double> expected_mm = {10.0, 0.0, -7.0, 0.0};  // per second
+  for (size_t k = 0; k < samples.size(); ++k)
+    ASSERT_NEAR(samples[k].deflection_mm, expected_mm[k / 10], 1e-12) << k;
+  EXPECT_EQ(samples[25].voltage_V, -5.0);
+}
+
+// Drive-side effects act in the order given: a dead zone of 0.5 V and a ratio of 0.7 on
+// -2 V give 0.7 * (-1.5) = -1.05 V one way round and -1.4 + 0.5 = -0.9 V the other.
+TEST(Rig, DeadZoneAndEffectsInTheOrderGiven) {
+  auto both = [](const std::string& first, const std::string& second) {
+    std::vector<std::unique_ptr<rig::Effect>> effects;
+    effects.push_back(ParseEffect(first));
+    effects.push_back(ParseEffect(second));
+    return RunStream(GainModel(), "staircase:levels=0.3/1/-2,dwell=1", std::move(effects));
+  };
+  const auto dead_zone_first = both("dead_zone:threshold=0.5", "polarity_asymmetry:ratio=0.7");
+  const auto ratio_first = both("polarity_asymmetry:ratio=0.7", "dead_zone:threshold=0.5");
+  ASSERT_EQ(dead_zone_first.size(), 40u);
+  const std::vector<double> expected_mm = {0.0, 1.0, -2.1, 0.0};
+  const std::vector<double> reversed_mm = {0.0, 1.0, -1.8, 0.0};
+  for (size_t k = 0; k < 40; ++k) {
+    ASSERT_NEAR(dead_zone_first[k].deflection_mm, expected_mm[k / 10], 1e-12) << k;
+    ASSERT_NEAR(ratio_first[k].deflection_mm, reversed_mm[k / 10], 1e-12) << k;
+  }
 }
 
 TEST(Rig, SeededNoiseIsReproducibleAndHasTheGivenSigma) {
@@ -703,7 +976,9 @@ TEST_F(RigBinary, BadUsageIsOneLineAndExitTwo) {
       {bus + " --protocol step:level=2",
        "flexid-rig: protocol \"step:level=2\": missing key \"duration\"\n"},
       {bus + " --protocol hold:level=1,duration=1 --effect wobble",
-       "flexid-rig: effect \"wobble\": unknown effect \"wobble\" (expected back_relaxation)\n"},
+       "flexid-rig: effect \"wobble\": unknown effect \"wobble\" (expected back_relaxation, "
+       "cycle_degradation, hysteresis, electrolysis_saturation, sensor_drift, polarity_asymmetry "
+       "or dead_zone)\n"},
       {bus + " --protocol hold:level=1,duration=1 --speed -1",
        "flexid-rig: --speed must be 0 (as fast as possible) or a finite number >= 0.001\n"},
       {bus + " --protocol hold:level=1,duration=1 --rate-hz 0",
@@ -717,7 +992,24 @@ TEST_F(RigBinary, BadUsageIsOneLineAndExitTwo) {
        "flexid-rig: --actuator must be 1 to 64 of A-Z a-z 0-9 _ - (got \"S 1\")\n"},
       {bus + " --protocol hold:level=1,duration=1 --model " + scratch_.File("missing.json"),
        ""},  // the model file's own one-line message
-      {" --actuator S1 --protocol hold:level=1,duration=1", "flexid-rig: --lcm is required\n"},
+      {" --actuator S1 --protocol hold:level=1,duration=1",
+       "flexid-rig: --lcm URL (on the bus) or --out FILE.csv is required\n"},
+      {" --lcm 'udpm://239.255.76.67:7667?ttl=0' --protocol hold:level=1,duration=1",
+       "flexid-rig: --actuator is required with --lcm\n"},
+      {" --lcm 'udpm://239.255.76.67:7667?ttl=0' --out " + scratch_.File("x.csv") +
+           " --protocol hold:level=1,duration=1",
+       "flexid-rig: --out and --lcm cannot be combined (--out writes the recording to a file, "
+       "without the bus)\n"},
+      {" --out " + scratch_.File("x.csv") + " --protocol hold:level=1,duration=1 --speed 0",
+       "flexid-rig: --out and --speed cannot be combined (--out writes the recording to a file, "
+       "without the bus)\n"},
+      {" --out " + scratch_.File("x.csv") + " --protocol hold:level=1,duration=1 --trial-control",
+       "flexid-rig: --out and --trial-control cannot be combined (--out writes the recording to a "
+       "file, without the bus)\n"},
+      {" --out " + scratch_.File("x.csv") +
+           " --protocol hold:level=1,duration=1 --effect "
+           "hysteresis:width=-1",
+       "flexid-rig: effect \"hysteresis:width=-1\": width must be >= 0 mm (got -1)\n"},
   };
   for (const auto& [args, message] : cases) {
     const auto r = Run(args);
@@ -728,6 +1020,90 @@ TEST_F(RigBinary, BadUsageIsOneLineAndExitTwo) {
       EXPECT_EQ(r.err, message) << args;
     }
   }
+}
+
+// The stream flexid-rig --out writes, as the library makes it in-process.
+std::vector<rig::RigSample> ExpectedStream(const std::string& protocol,
+                                           const std::vector<std::string>& effect_specs,
+                                           double noise_mm, uint64_t seed) {
+  std::vector<std::unique_ptr<rig::Effect>> effects;
+  for (const std::string& spec : effect_specs) effects.push_back(ParseEffect(spec));
+  rig::RigOptions options;
+  options.noise_mm = noise_mm;
+  options.seed = seed;
+  return RunStream(model::SeedTsModel(), protocol, std::move(effects), options);
+}
+
+TEST_F(RigBinary, OfflineWritesTheWholeRunAsARecordingCsv) {
+  const std::string path = scratch_.File("rec.csv");
+  const std::string protocol = "square:level=5,period=20,cycles=2,polarity=alternate";
+  const auto r = Run("--out " + path + " --protocol " + protocol +
+                     " --noise-mm 0.02 --seed 7 --effect polarity_asymmetry:ratio=0.8 "
+                     "--effect hysteresis:width=0.05");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(r.err, "");
+  EXPECT_EQ(r.out, "wrote 400 samples (0 .. 39.9 s) to " + path + "\n");
+
+  const model::Recording recording = model::ReadRecordingCsv(path);
+  const auto expected =
+      ExpectedStream(protocol, {"polarity_asymmetry:ratio=0.8", "hysteresis:width=0.05"}, 0.02, 7);
+  ASSERT_EQ(recording.t_s.size(), expected.size());
+  ASSERT_EQ(recording.deflection_mm.size(), expected.size());
+  for (size_t k = 0; k < expected.size(); ++k) {
+    // The CSV holds the shortest form that reads back to the same double: exact.
+    ASSERT_EQ(recording.t_s[k], expected[k].t_s) << k;
+    ASSERT_EQ(recording.voltage_V[k], expected[k].voltage_V) << k;
+    ASSERT_EQ(recording.deflection_mm[k], expected[k].deflection_mm) << k;
+  }
+  EXPECT_EQ(recording.voltage_V[0], 5.0);
+  EXPECT_EQ(recording.voltage_V[250], -5.0);  // the second period at -level
+}
+
+TEST_F(RigBinary, OfflineNoiseIsSeededWithSeedOneByDefault) {
+  const std::string protocol = " --protocol step:level=8,duration=30 --noise-mm 0.05";
+  ASSERT_EQ(Run("--out " + scratch_.File("default.csv") + protocol).exit_code, 0);
+  ASSERT_EQ(Run("--out " + scratch_.File("one.csv") + protocol + " --seed 1").exit_code, 0);
+  ASSERT_EQ(Run("--out " + scratch_.File("two.csv") + protocol + " --seed 2").exit_code, 0);
+  const model::Recording by_default = model::ReadRecordingCsv(scratch_.File("default.csv"));
+  const model::Recording one = model::ReadRecordingCsv(scratch_.File("one.csv"));
+  const model::Recording two = model::ReadRecordingCsv(scratch_.File("two.csv"));
+  ASSERT_EQ(by_default.deflection_mm.size(), 300u);
+  EXPECT_EQ(by_default.deflection_mm, one.deflection_mm);
+  EXPECT_NE(one.deflection_mm, two.deflection_mm);
+  // Without noise and effects the recording is the model's response, exactly.
+  ASSERT_EQ(
+      Run("--out " + scratch_.File("clean.csv") + " --protocol step:level=8,duration=30").exit_code,
+      0);
+  const model::Recording clean = model::ReadRecordingCsv(scratch_.File("clean.csv"));
+  const auto expected = ExpectedStream("step:level=8,duration=30", {}, 0.0, 1);
+  ASSERT_EQ(clean.deflection_mm.size(), expected.size());
+  for (size_t k = 0; k < expected.size(); ++k)
+    ASSERT_EQ(clean.deflection_mm[k], expected[k].deflection_mm) << k;
+}
+
+TEST_F(RigBinary, OfflineWithAModelFile) {
+  const std::string model_path = scratch_.File("gain.json");
+  testing::WriteFile(model_path,
+                     R"({"format": "flexid.model/1", "kind": "tf", "num": [2], "den": [1]})");
+  const std::string path = scratch_.File("rec.csv");
+  const auto r = Run("--out " + path + " --model " + model_path +
+                     " --protocol staircase:levels=2/4/6/8,dwell=1 --effect "
+                     "electrolysis_saturation:onset=4,slope=0.3");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const model::Recording recording = model::ReadRecordingCsv(path);
+  ASSERT_EQ(recording.deflection_mm.size(), 50u);
+  const std::vector<double> expected_mm = {4.0, 8.0, 9.2, 10.4, 0.0};
+  for (size_t k = 0; k < 50; ++k)
+    EXPECT_NEAR(recording.deflection_mm[k], expected_mm[k / 10], 1e-12) << k;
+}
+
+TEST_F(RigBinary, OfflineCannotWriteIsAnOperationFailure) {
+  const auto r =
+      Run("--out " + scratch_.File("no/such/dir/rec.csv") + " --protocol hold:level=1,duration=1");
+  EXPECT_EQ(r.exit_code, 1) << r.err;
+  EXPECT_EQ(r.out, "");
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+  EXPECT_EQ(r.err.rfind("flexid-rig: ", 0), 0u) << r.err;
 }
 
 TEST_F(RigBinary, ABadBusUrlIsAnOperationFailure) {

@@ -24,6 +24,7 @@ void RegisterTfCommand(CLI::App& app);
 void RegisterSimulateCommand(CLI::App& app);
 void RegisterPhysicsCommand(CLI::App& app);
 void RegisterIdentifyCommand(CLI::App& app);
+void RegisterDiagnoseCommand(CLI::App& app);
 void RegisterBusCommands(CLI::App& app);
 
 }  // namespace flexid::cli

@@ -2,14 +2,34 @@
 
 #include <algorithm>
 #include <cmath>
+#include <optional>
+#include <string>
 
 #include "clients/rig/spec.h"
 #include "model/errors.h"
 
 namespace flexid::rig {
+namespace {
+
+// SpecReader reads numbers only; a word-valued KEY is taken out of a copy of the
+// specification here and its value returned (nullopt if absent). The caller asks the reader
+// for KEY on the copy all the same, so that an unknown-key message lists it.
+std::optional<std::string> TakeWord(Spec* spec, const std::string& key) {
+  for (auto it = spec->params.begin(); it != spec->params.end(); ++it) {
+    if (it->first != key) continue;
+    std::string value = it->second;
+    spec->params.erase(it);
+    return value;
+  }
+  return std::nullopt;
+}
+
+}  // namespace
 
 Protocol ParseProtocol(std::string_view text) {
-  const Spec spec = Spec::Parse(text, "protocol");
+  Spec spec = Spec::Parse(text, "protocol");
+  const std::optional<std::string> polarity =
+      spec.name == "square" ? TakeWord(&spec, "polarity") : std::nullopt;
   SpecReader reader(spec);
   Protocol protocol;
   protocol.text = spec.text;
@@ -24,6 +44,10 @@ Protocol ParseProtocol(std::string_view text) {
     protocol.period_s = reader.Required("period", reader.Positive("period", "s"));
     protocol.duty = reader.InRange("duty", 0.0, 1.0, /*include_ends=*/false).value_or(0.5);
     protocol.cycles = reader.Required("cycles", reader.Count("cycles"));
+    reader.Number("polarity");  // taken out above: names the key for RejectUnknownKeys
+    if (polarity && *polarity != "same" && *polarity != "alternate")
+      spec.Fail("polarity must be same or alternate (got \"" + *polarity + "\")");
+    protocol.alternate_polarity = polarity == "alternate";
   } else if (spec.name == "staircase") {
     protocol.shape = Protocol::Shape::kStaircase;
     protocol.levels_V = reader.Required("levels", reader.NumberList("levels"));
@@ -66,7 +90,9 @@ double VoltageAt(const Protocol& protocol, double t_s) {
       const double last_period = static_cast<double>(protocol.cycles - 1);
       const double period = std::min(std::floor(t / protocol.period_s), last_period);
       const double phase_s = t - period * protocol.period_s;
-      return phase_s < protocol.duty * protocol.period_s ? protocol.level_V : 0.0;
+      if (phase_s >= protocol.duty * protocol.period_s) return 0.0;
+      const bool negative = protocol.alternate_polarity && std::fmod(period, 2.0) == 1.0;
+      return negative ? -protocol.level_V : protocol.level_V;
     }
     case Protocol::Shape::kStaircase: {
       const double step = std::floor(t / protocol.dwell_s);

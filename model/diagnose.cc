@@ -1,0 +1,1337 @@
+#include "model/diagnose.h"
+
+#include <ceres/ceres.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <functional>
+#include <limits>
+#include <numeric>
+#include <stdexcept>
+
+#include "model/errors.h"
+#include "model/identify_ts.h"
+#include "model/levels.h"
+#include "model/metrics.h"
+#include "model/polynomial.h"
+#include "model/simulate.h"
+
+namespace flexid::model {
+namespace {
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+
+// -----------------------------------------------------------------------------------------
+// The catalogue
+// -----------------------------------------------------------------------------------------
+
+struct EffectInfo {
+  EffectKind kind;
+  const char* name;
+  const char* description;
+  std::vector<std::string> params;
+  bool input_side;  // changes the voltage the model is driven with
+};
+
+const std::vector<EffectInfo>& Catalogue() {
+  static const std::vector<EffectInfo> catalogue = {
+      {EffectKind::kBackRelaxation,
+       "back_relaxation",
+       "Under a sustained voltage the gel bends, then slowly bends part of the way back as "
+       "ions and solvent redistribute and relax the osmotic pressure difference; when the "
+       "voltage is removed it overshoots past rest. Residual: falls during holds, turns "
+       "negative after them, with one slow time constant. Model: y - fraction * s, "
+       "tau_s s' = y - s (an extra slow pole-zero pair, gain scaled by 1 - fraction).",
+       {"fraction", "tau_s"},
+       false},
+      {EffectKind::kCreep,
+       "creep",
+       "Under a sustained voltage the beam keeps bending slowly beyond the model's "
+       "equilibrium (viscoelastic creep of the polymer network, slow swelling). Residual: "
+       "grows during holds with one slow time constant, positive after them. Model: "
+       "y + fraction * s, tau_s s' = y - s.",
+       {"fraction", "tau_s"},
+       false},
+      {EffectKind::kCycleDegradation,
+       "cycle_degradation",
+       "Repeated actuation degrades the gel and the electrode interface (ion depletion, "
+       "delamination), so each volt moves the beam less as charge is transferred. "
+       "Residual: amplitude shrinks from cycle to cycle in proportion to the response. "
+       "Model: drive voltage u (1 - loss)^(Q(t) / Q_end), Q = integral |u| dt.",
+       {"loss"},
+       true},
+      {EffectKind::kHysteresis,
+       "hysteresis",
+       "Friction in the clamp and in the polymer network make the beam lag by a fixed "
+       "amount whenever its motion reverses, whatever the rate. Residual: an offset against "
+       "the direction of motion, switching over the first reach_mm of travel after each "
+       "reversal, persisting in holds and at rest. Model: Dahl's friction model on the "
+       "model's deflection y: dh/dy = (sign(dy) - h) / reach_mm, output y - width_mm h.",
+       {"width_mm", "reach_mm"},
+       false},
+      {EffectKind::kElectrolysisSaturation,
+       "electrolysis_saturation",
+       "Above the electrolyte's decomposition voltage the extra voltage drives water "
+       "electrolysis (gas, current) instead of ion migration into the gel, so deflection "
+       "grows more slowly with voltage. Residual: negative at the high levels only, "
+       "proportional to the voltage above the onset. Model: |u| above onset_V scaled by "
+       "slope.",
+       {"onset_V", "slope"},
+       true},
+      {EffectKind::kDeadZone,
+       "dead_zone",
+       "Below an onset voltage the electrochemistry does not start (or an electrostatic "
+       "actuator does not zip), so small voltages move nothing. Residual: the response "
+       "at every level is lower by the same voltage's worth, relatively most at low "
+       "levels. Model: drive sign(u) max(|u| - threshold_V, 0).",
+       {"threshold_V"},
+       true},
+      {EffectKind::kSensorDrift,
+       "sensor_drift",
+       "The displacement sensor's zero moves (thermal drift, a creeping mount) independent "
+       "of the actuator. Residual: a slow trend that continues at rest and does not follow "
+       "the voltage. Model: offset_mm + drift_mm x + bow_mm 4 x (1 - x), x = time as a "
+       "fraction of the recording.",
+       {"offset_mm", "drift_mm", "bow_mm"},
+       false},
+      {EffectKind::kPolarityAsymmetry,
+       "polarity_asymmetry",
+       "Negative voltage moves the beam with another gain than positive (asymmetric "
+       "electrodes, different mobile ions on either side). Residual: proportional to the "
+       "response during negative voltage only. Model: u < 0 driven as ratio u.",
+       {"ratio"},
+       true},
+  };
+  return catalogue;
+}
+
+const EffectInfo& Info(EffectKind kind) {
+  for (const EffectInfo& info : Catalogue())
+    if (info.kind == kind) return info;
+  throw std::invalid_argument("unknown effect kind");
+}
+
+// -----------------------------------------------------------------------------------------
+// Effect models
+// -----------------------------------------------------------------------------------------
+
+// tau s' = y - s with y linear between samples, solved exactly per step (first-order hold);
+// s starts at y_0 (steady state).
+std::vector<double> SlowFollower(std::span<const double> t_s, std::span<const double> y,
+                                 double tau_s) {
+  std::vector<double> s(y.size());
+  if (y.empty()) return s;
+  s[0] = y[0];
+  for (size_t k = 0; k + 1 < y.size(); ++k) {
+    const double r = (t_s[k + 1] - t_s[k]) / tau_s;
+    const double a = std::exp(-r);
+    const double ramp = r > 1e-8 ? 1.0 - (1.0 - a) / r : 0.5 * r;
+    s[k + 1] = a * s[k] + (1.0 - a) * y[k] + ramp * (y[k + 1] - y[k]);
+  }
+  return s;
+}
+
+void ApplyInputEffect(const Effect& e, std::span<const double> t_s,
+                      std::vector<double>* voltage_V) {
+  std::vector<double>& u = *voltage_V;
+  switch (e.kind) {
+    case EffectKind::kCycleDegradation: {
+      // Q(t_k) = sum_{j<k} |u_j| (t_{j+1} - t_j): the charge proxy up to the sample.
+      std::vector<double> q(u.size(), 0.0);
+      for (size_t k = 1; k < u.size(); ++k)
+        q[k] = q[k - 1] + std::abs(u[k - 1]) * (t_s[k] - t_s[k - 1]);
+      const double total = q.back() > 0 ? q.back() : 1.0;
+      const double log_keep = std::log(std::max(1e-9, 1.0 - e.params[0]));
+      for (size_t k = 0; k < u.size(); ++k) u[k] *= std::exp(log_keep * q[k] / total);
+      break;
+    }
+    case EffectKind::kElectrolysisSaturation: {
+      const double onset = e.params[0], slope = e.params[1];
+      for (double& v : u) {
+        const double a = std::abs(v);
+        if (a > onset) v = std::copysign(onset + slope * (a - onset), v);
+      }
+      break;
+    }
+    case EffectKind::kDeadZone:
+      for (double& v : u) v = std::copysign(std::max(std::abs(v) - e.params[0], 0.0), v);
+      break;
+    case EffectKind::kPolarityAsymmetry:
+      for (double& v : u)
+        if (v < 0) v *= e.params[0];
+      break;
+    default:
+      break;
+  }
+}
+
+void ApplyOutputEffect(const Effect& e, std::span<const double> t_s, std::vector<double>* y_mm) {
+  std::vector<double>& y = *y_mm;
+  const std::vector<double> base = e.kind == EffectKind::kHysteresis ? y : std::vector<double>{};
+  switch (e.kind) {
+    case EffectKind::kBackRelaxation:
+    case EffectKind::kCreep: {
+      const std::vector<double> s = SlowFollower(t_s, y, e.params[1]);
+      const double sign = e.kind == EffectKind::kBackRelaxation ? -1.0 : 1.0;
+      for (size_t k = 0; k < y.size(); ++k) y[k] += sign * e.params[0] * s[k];
+      break;
+    }
+    case EffectKind::kHysteresis: {
+      // Dahl's friction model, rate-independent: the friction state h moves towards the
+      // direction of motion exponentially in the distance travelled, over reach_mm;
+      // the beam lags by width_mm h.
+      const double width = e.params[0], reach = std::max(std::abs(e.params[1]), 1e-9);
+      double h = 0.0;
+      for (size_t k = 1; k < y.size(); ++k) {
+        const double dy = y[k] - base[k - 1];
+        if (dy != 0.0) {
+          const double target = dy > 0 ? 1.0 : -1.0;
+          h = target + (h - target) * std::exp(-std::abs(dy) / reach);
+        }
+        y[k] = base[k] - width * h;
+      }
+      break;
+    }
+    case EffectKind::kSensorDrift: {
+      const double t0 = t_s.front(), span = std::max(t_s.back() - t0, 1e-12);
+      for (size_t k = 0; k < y.size(); ++k) {
+        const double x = (t_s[k] - t0) / span;
+        y[k] += e.params[0] + e.params[1] * x + e.params[2] * 4.0 * x * (1.0 - x);
+      }
+      break;
+    }
+    default:
+      break;
+  }
+}
+
+// -----------------------------------------------------------------------------------------
+// Statistics
+// -----------------------------------------------------------------------------------------
+
+double SumSquares(std::span<const double> r, const std::vector<size_t>& index) {
+  double sum = 0.0;
+  for (size_t k : index) sum += r[k] * r[k];
+  return sum;
+}
+
+// Lag-1 autocorrelation of r over consecutive members of `index` (pairs that straddle a
+// gap are skipped), clamped to [0, 0.995]; n_eff = n (1 - rho) / (1 + rho).
+double EffectiveSamples(std::span<const double> r, const std::vector<size_t>& index) {
+  double mean = 0.0;
+  for (size_t k : index) mean += r[k];
+  mean /= static_cast<double>(std::max<size_t>(index.size(), 1));
+  double c0 = 0.0, c1 = 0.0;
+  for (size_t i = 0; i < index.size(); ++i) {
+    const double a = r[index[i]] - mean;
+    c0 += a * a;
+    if (i + 1 < index.size() && index[i + 1] == index[i] + 1) c1 += a * (r[index[i + 1]] - mean);
+  }
+  const double rho = c0 > 0 ? std::clamp(c1 / c0, 0.0, 0.995) : 0.0;
+  return static_cast<double>(index.size()) * (1.0 - rho) / (1.0 + rho);
+}
+
+std::vector<double> Residual(std::span<const double> y, std::span<const double> yhat) {
+  std::vector<double> r(y.size());
+  for (size_t k = 0; k < y.size(); ++k) r[k] = y[k] - yhat[k];
+  return r;
+}
+
+// measured - predicted with the step-timing nuisance projected out (Data::edges_*): what
+// every fit and test works on.
+std::vector<double> ScaledResidual(const struct Data& data, std::span<const double> predicted);
+
+double RmsOver(std::span<const double> r, const std::vector<size_t>& index) {
+  return index.empty() ? 0.0 : std::sqrt(SumSquares(r, index) / static_cast<double>(index.size()));
+}
+
+// -----------------------------------------------------------------------------------------
+// The recording as the diagnosis sees it
+// -----------------------------------------------------------------------------------------
+
+struct Data {
+  const Recording* rec = nullptr;
+  // The voltage column is sampled: where the voltage really stepped between two samples is
+  // unknown, and a step's timing error leaves an error that the slow modes carry for
+  // minutes. Every model is therefore compared after projecting out, on the training and
+  // on the held-out samples separately, the baseline's response to moving each recorded
+  // step by up to half a sample (nuisance regressors; orthonormal bases, empty: none).
+  Eigen::MatrixXd edges_train, edges_heldout;
+  std::vector<Effect> given;  // part of the baseline
+  std::vector<size_t> train, heldout;
+  std::vector<TimeSpan> heldout_spans;
+  double noise_mm = 0.0;
+  double max_abs_V = 0.0;
+  double rest_band_V = 0.0;
+  LevelAnalysis levels;
+  std::vector<double> abs_levels_V;  // distinct |level|, ascending
+  double duration_s = 0.0;
+  double dt_s = 0.0;  // median sample period
+};
+
+std::vector<double> ScaledResidual(const Data& data, std::span<const double> predicted) {
+  std::vector<double> r = Residual(data.rec->deflection_mm, predicted);
+  auto project = [&r](const std::vector<size_t>& index, const Eigen::MatrixXd& q) {
+    if (q.cols() == 0) return;
+    Eigen::VectorXd v(static_cast<long>(index.size()));
+    for (size_t i = 0; i < index.size(); ++i) v(static_cast<long>(i)) = r[index[i]];
+    v -= q * (q.transpose() * v);
+    for (size_t i = 0; i < index.size(); ++i) r[index[i]] = v(static_cast<long>(i));
+  };
+  project(data.train, data.edges_train);
+  project(data.heldout, data.edges_heldout);
+  return r;
+}
+
+// The baseline plus a list of effects: one prediction.
+struct Augmented {
+  const TsModel* baseline = nullptr;
+  std::vector<Effect> effects;
+};
+
+// `cache`: the baseline's own prediction, if known (output-side effects then need no
+// simulation).
+std::vector<double> Predict(const Data& data, const Augmented& a,
+                            const std::vector<double>* cache = nullptr) {
+  const Recording& rec = *data.rec;
+  bool any_input = false;
+  for (const Effect& e : a.effects) any_input |= Info(e.kind).input_side;
+  std::vector<double> y;
+  if (!any_input && cache) {
+    y = *cache;  // the baseline with the given effects
+  } else {
+    std::vector<double> u = rec.voltage_V;
+    for (const auto* list : {&data.given, &a.effects})
+      for (const Effect& e : *list)
+        if (Info(e.kind).input_side) ApplyInputEffect(e, rec.t_s, &u);
+    y = Simulate(*a.baseline, rec.t_s, u);
+    for (const Effect& e : data.given)
+      if (!Info(e.kind).input_side) ApplyOutputEffect(e, rec.t_s, &y);
+  }
+  for (const Effect& e : a.effects)
+    if (!Info(e.kind).input_side) ApplyOutputEffect(e, rec.t_s, &y);
+  return y;
+}
+
+// -----------------------------------------------------------------------------------------
+// Fitting effect parameters (Ceres, numeric derivatives through the simulation)
+// -----------------------------------------------------------------------------------------
+
+struct ParameterSpec {
+  double lower, upper;
+  std::vector<double> starts;  // candidate starting values (all combinations are tried)
+};
+
+struct FitProblem {
+  Augmented fixed;                   // baseline and effects already chosen
+  std::vector<EffectKind> kinds;     // effects whose parameters are fitted (appended)
+  std::vector<ParameterSpec> specs;  // for every fitted parameter, effect by effect
+};
+
+struct FitResult {
+  Augmented model;
+  std::vector<double> theta;  // fitted parameters
+  std::vector<double> half_width;
+  std::vector<double> prediction;
+  double train_sse = kInf;
+};
+
+Augmented Assemble(const FitProblem& p, const double* theta) {
+  Augmented a = p.fixed;
+  size_t i = 0;
+  for (EffectKind kind : p.kinds) {
+    Effect e{kind, {}};
+    for (size_t j = 0; j < Info(kind).params.size(); ++j) e.params.push_back(theta[i++]);
+    a.effects.push_back(std::move(e));
+  }
+  return a;
+}
+
+class EffectCost {
+ public:
+  EffectCost(const Data& data, const FitProblem& problem, const std::vector<double>* baseline)
+      : data_(data), problem_(problem), baseline_(baseline) {}
+  bool operator()(double const* const* parameters, double* residuals) const {
+    const std::vector<double> y = Predict(data_, Assemble(problem_, parameters[0]), baseline_);
+    const std::vector<double> projected = ScaledResidual(data_, y);
+    for (size_t i = 0; i < data_.train.size(); ++i) {
+      const double r = projected[data_.train[i]];
+      residuals[i] = std::isfinite(r) ? r : 1e6;
+    }
+    return true;
+  }
+
+ private:
+  const Data& data_;
+  const FitProblem& problem_;
+  const std::vector<double>* baseline_;
+};
+
+FitResult FitParameters(const Data& data, const FitProblem& problem,
+                        const std::vector<double>* baseline) {
+  const std::vector<ParameterSpec>& specs = problem.specs;
+  const size_t q = specs.size();
+  FitResult best;
+  if (q == 0) {
+    best.model = problem.fixed;
+    best.prediction = Predict(data, best.model, baseline);
+    best.train_sse = SumSquares(ScaledResidual(data, best.prediction), data.train);
+    return best;
+  }
+  // Levenberg-Marquardt from theta (in place) for at most `iterations`; returns the SSE and,
+  // if asked, the 95 % half-widths from the Jacobian at the end point, with the residual
+  // variance inflated by n / n_eff for correlated residuals.
+  auto solve = [&](std::vector<double>* theta, int iterations, std::vector<double>* half_width) {
+    ceres::Problem ceres_problem;
+    auto* cost = new ceres::DynamicNumericDiffCostFunction<EffectCost, ceres::CENTRAL>(
+        new EffectCost(data, problem, baseline));
+    cost->AddParameterBlock(static_cast<int>(q));
+    cost->SetNumResiduals(static_cast<int>(data.train.size()));
+    ceres_problem.AddResidualBlock(cost, nullptr, theta->data());
+    for (size_t j = 0; j < q; ++j) {
+      ceres_problem.SetParameterLowerBound(theta->data(), static_cast<int>(j), specs[j].lower);
+      ceres_problem.SetParameterUpperBound(theta->data(), static_cast<int>(j), specs[j].upper);
+    }
+    ceres::Solver::Options options;
+    options.linear_solver_type = ceres::DENSE_QR;
+    options.max_num_iterations = iterations;
+    options.function_tolerance = 1e-8;
+    options.logging_type = ceres::SILENT;
+    options.num_threads = 1;
+    ceres::Solver::Summary summary;
+    ceres::Solve(options, &ceres_problem, &summary);
+    if (half_width) {
+      ceres::CRSMatrix jacobian;
+      std::vector<double> residuals;
+      ceres_problem.Evaluate(ceres::Problem::EvaluateOptions(), nullptr, &residuals, nullptr,
+                             &jacobian);
+      Eigen::MatrixXd j = Eigen::MatrixXd::Zero(jacobian.num_rows, jacobian.num_cols);
+      for (int r = 0; r < jacobian.num_rows; ++r)
+        for (int i = jacobian.rows[static_cast<size_t>(r)];
+             i < jacobian.rows[static_cast<size_t>(r) + 1]; ++i)
+          j(r, jacobian.cols[static_cast<size_t>(i)]) = jacobian.values[static_cast<size_t>(i)];
+      std::vector<size_t> all(residuals.size());
+      std::iota(all.begin(), all.end(), size_t{0});
+      const double n = static_cast<double>(residuals.size());
+      const double n_eff = std::max(EffectiveSamples(residuals, all), 1.0);
+      const double sigma2 =
+          2.0 * summary.final_cost / std::max(1.0, n - static_cast<double>(q)) * n / n_eff;
+      Eigen::MatrixXd covariance;
+      half_width->assign(q, kInf);
+      if (CovarianceFromNormalMatrix(j.transpose() * j, static_cast<int>(q), sigma2, &covariance))
+        for (size_t i = 0; i < q; ++i)
+          (*half_width)[i] =
+              1.96 *
+              std::sqrt(std::max(0.0, covariance(static_cast<long>(i), static_cast<long>(i))));
+    }
+    return 2.0 * summary.final_cost;
+  };
+  // Every combination of the starting values, a few iterations each; the best goes on.
+  std::vector<std::vector<double>> starts = {{}};
+  for (const ParameterSpec& spec : specs) {
+    std::vector<std::vector<double>> next;
+    for (const auto& partial : starts)
+      for (double v : spec.starts) {
+        auto extended = partial;
+        extended.push_back(std::clamp(v, spec.lower, spec.upper));
+        next.push_back(std::move(extended));
+      }
+    starts = std::move(next);
+  }
+  std::vector<double> theta = starts.front();
+  if (starts.size() > 1) {
+    double best_sse = kInf;
+    for (std::vector<double> start : starts) {
+      const double sse = solve(&start, 4, nullptr);
+      if (sse < best_sse) {
+        best_sse = sse;
+        theta = start;
+      }
+    }
+  }
+  solve(&theta, 40, &best.half_width);
+  best.theta = theta;
+  best.model = Assemble(problem, best.theta.data());
+  best.prediction = Predict(data, best.model, baseline);
+  best.train_sse = SumSquares(ScaledResidual(data, best.prediction), data.train);
+  return best;
+}
+
+// Bounds and starting values of one effect's parameters for this recording.
+std::vector<ParameterSpec> SpecsFor(EffectKind kind, const Data& data) {
+  const double D = data.duration_s, dt = data.dt_s;
+  const double top = data.abs_levels_V.empty() ? data.max_abs_V : data.abs_levels_V.back();
+  const double low = data.abs_levels_V.empty() ? 0.0 : data.abs_levels_V.front();
+  double range_mm = 0.0;
+  {
+    const auto [lo, hi] =
+        std::minmax_element(data.rec->deflection_mm.begin(), data.rec->deflection_mm.end());
+    range_mm = *hi - *lo;
+  }
+  const double tau_lo = std::max(5.0 * dt, 1.0), tau_hi = std::max(3.0 * D, tau_lo * 2);
+  auto taus = [&] {
+    std::vector<double> v;
+    for (double t : {20.0, 80.0, 300.0})
+      if (t < tau_hi && t > tau_lo) v.push_back(t);
+    if (v.empty()) v.push_back(std::sqrt(tau_lo * tau_hi));
+    return v;
+  };
+  switch (kind) {
+    case EffectKind::kBackRelaxation:
+    case EffectKind::kCreep:
+      return {{0.0, kind == EffectKind::kBackRelaxation ? 0.95 : 2.0, {0.03, 0.2}},
+              {tau_lo, tau_hi, taus()}};
+    case EffectKind::kCycleDegradation:
+      return {{-1.0, 0.95, {-0.05, 0.05}}};
+    case EffectKind::kHysteresis:
+      return {{0.0, 0.5 * range_mm + 1e-9, {std::max(2.0 * data.noise_mm, 1e-6)}},
+              {1e-3 * range_mm + 1e-9,
+               range_mm + 1e-9,
+               {0.01 * range_mm + 1e-9, 0.1 * range_mm + 1e-9}}};
+    case EffectKind::kElectrolysisSaturation: {
+      std::vector<double> onsets;
+      for (size_t i = 0; i + 1 < data.abs_levels_V.size(); ++i)
+        onsets.push_back(0.5 * (data.abs_levels_V[i] + data.abs_levels_V[i + 1]));
+      if (onsets.empty()) onsets.push_back(0.5 * top);
+      return {{0.5 * low, top, onsets}, {0.0, 1.0, {0.5}}};
+    }
+    case EffectKind::kDeadZone:
+      return {{0.0, 0.9 * std::max(low, 1e-9), {0.1 * low, 0.4 * low}}};
+    case EffectKind::kSensorDrift:
+      return {{-kInf, kInf, {0.0}}, {-kInf, kInf, {0.0}}, {-kInf, kInf, {0.0}}};
+    case EffectKind::kPolarityAsymmetry:
+      return {{0.05, 3.0, {0.8, 1.2}}};
+  }
+  return {};
+}
+
+// Can the recording show the effect at all?
+bool Applicable(EffectKind kind, const Data& data, std::string* why) {
+  const auto& u = data.rec->voltage_V;
+  size_t positive = 0, negative = 0;
+  for (double v : u) {
+    if (v > data.rest_band_V) ++positive;
+    if (v < -data.rest_band_V) ++negative;
+  }
+  switch (kind) {
+    case EffectKind::kPolarityAsymmetry:
+      if (std::min(positive, negative) < std::max<size_t>(20, (positive + negative) / 20)) {
+        *why = "the recording does not drive both polarities";
+        return false;
+      }
+      return true;
+    case EffectKind::kElectrolysisSaturation:
+    case EffectKind::kDeadZone:
+      if (data.abs_levels_V.size() < 2) {
+        *why = "needs two or more voltage levels (one level cannot tell it from a gain error)";
+        return false;
+      }
+      return true;
+    default:
+      return true;
+  }
+}
+
+// -----------------------------------------------------------------------------------------
+// Locating: residual by operating condition, and where an effect acts
+// -----------------------------------------------------------------------------------------
+
+std::string Format(const char* fmt, double a) {
+  const int size = std::snprintf(nullptr, 0, fmt, a);
+  std::string out(static_cast<size_t>(std::max(size, 0)) + 1, '\0');
+  std::snprintf(out.data(), out.size(), fmt, a);
+  out.pop_back();
+  return out;
+}
+
+std::vector<ResidualGroup> GroupResiduals(const Data& data, std::span<const double> r,
+                                          std::span<const double> baseline_mm,
+                                          double transition_s) {
+  const Recording& rec = *data.rec;
+  const size_t n = r.size();
+  std::vector<ResidualGroup> groups;
+  auto add = [&](const std::string& dimension, const std::string& group,
+                 const std::function<bool(size_t)>& member) {
+    ResidualGroup g{dimension, group, 0, 0.0, 0.0};
+    for (size_t k = 0; k < n; ++k)
+      if (member(k)) {
+        ++g.samples;
+        g.mean_mm += r[k];
+        g.rms_mm += r[k] * r[k];
+      }
+    if (g.samples == 0) return;
+    g.mean_mm /= static_cast<double>(g.samples);
+    g.rms_mm = std::sqrt(g.rms_mm / static_cast<double>(g.samples));
+    groups.push_back(std::move(g));
+  };
+  // Condition: rest, transition (within transition_s of a voltage change), held.
+  std::vector<double> since_change(n, kInf);
+  double last_change = -kInf;
+  for (size_t k = 0; k < n; ++k) {
+    if (k > 0 && std::abs(rec.voltage_V[k] - rec.voltage_V[k - 1]) > 2.0 * data.rest_band_V)
+      last_change = rec.t_s[k];
+    since_change[k] = rec.t_s[k] - last_change;
+  }
+  auto rest = [&](size_t k) { return std::abs(rec.voltage_V[k]) <= data.rest_band_V; };
+  add("condition", "transition", [&](size_t k) { return since_change[k] < transition_s; });
+  add("condition", "held voltage",
+      [&](size_t k) { return since_change[k] >= transition_s && !rest(k); });
+  add("condition", "rest (no input)",
+      [&](size_t k) { return since_change[k] >= transition_s && rest(k); });
+  // Level and polarity.
+  for (double level : data.abs_levels_V)
+    add("level", Format("%.3g V", level), [&](size_t k) {
+      return !rest(k) && std::abs(std::abs(rec.voltage_V[k]) - level) <=
+                             std::max(data.levels.tolerance_V, 0.05 * level);
+    });
+  add("polarity", "positive", [&](size_t k) { return rec.voltage_V[k] > data.rest_band_V; });
+  add("polarity", "negative", [&](size_t k) { return rec.voltage_V[k] < -data.rest_band_V; });
+  // Cycle number (excursions from rest) and cumulative charge.
+  std::vector<int> cycle(n, 0);
+  std::vector<double> charge(n, 0.0);
+  int cycles = 0;
+  for (size_t k = 0; k < n; ++k) {
+    if (k > 0) {
+      if (!rest(k) && rest(k - 1)) ++cycles;
+      charge[k] = charge[k - 1] + std::abs(rec.voltage_V[k - 1]) * (rec.t_s[k] - rec.t_s[k - 1]);
+    } else if (!rest(k)) {
+      cycles = 1;
+    }
+    cycle[k] = cycles;
+  }
+  if (cycles >= 2) {
+    const int per = std::max(1, (cycles + 7) / 8);  // at most 8 groups
+    for (int c = 1; c <= cycles; c += per)
+      add("cycle",
+          per == 1
+              ? "cycle " + std::to_string(c)
+              : "cycles " + std::to_string(c) + "-" + std::to_string(std::min(cycles, c + per - 1)),
+          [&, c, per](size_t k) { return cycle[k] >= c && cycle[k] < c + per; });
+  }
+  const double total = charge.back();
+  if (total > 0)
+    for (int third = 0; third < 3; ++third)
+      add("charge",
+          Format("%.0f", 100.0 * third / 3) + "-" +
+              Format("%.0f %% of charge", 100.0 * (third + 1) / 3),
+          [&, third](size_t k) {
+            const double f = charge[k] / total;
+            return f >= third / 3.0 && (f < (third + 1) / 3.0 || (third == 2 && f <= 1.0));
+          });
+  // Direction of motion of the model's deflection.
+  double range = 0.0;
+  for (double y : baseline_mm) range = std::max(range, std::abs(y));
+  const double still = 1e-3 * range / std::max(data.dt_s, 1e-12);
+  auto rate = [&](size_t k) {
+    if (k == 0) return 0.0;
+    return (baseline_mm[k] - baseline_mm[k - 1]) / (rec.t_s[k] - rec.t_s[k - 1]);
+  };
+  add("motion", "rising", [&](size_t k) { return rate(k) > still; });
+  add("motion", "falling", [&](size_t k) { return rate(k) < -still; });
+  add("motion", "still", [&](size_t k) { return std::abs(rate(k)) <= still; });
+  return groups;
+}
+
+// Spans where |delta| is at least `threshold`, joined across gaps shorter than join_s,
+// dropping those shorter than 2 samples; at most 12 (the largest by integrated |delta|).
+std::vector<TimeSpan> Spans(const Recording& rec, std::span<const double> delta, double threshold,
+                            double join_s) {
+  struct Run {
+    TimeSpan span;
+    double weight = 0.0;
+  };
+  std::vector<Run> runs;
+  for (size_t k = 0; k < delta.size(); ++k) {
+    if (std::abs(delta[k]) < threshold) continue;
+    if (!runs.empty() && rec.t_s[k] - runs.back().span.t_end_s <= join_s) {
+      runs.back().span.t_end_s = rec.t_s[k];
+    } else {
+      runs.push_back({{rec.t_s[k], rec.t_s[k]}, 0.0});
+    }
+    runs.back().weight += std::abs(delta[k]);
+  }
+  std::erase_if(runs, [](const Run& r) { return r.span.t_end_s <= r.span.t_start_s; });
+  if (runs.size() > 12) {
+    std::stable_sort(runs.begin(), runs.end(),
+                     [](const Run& a, const Run& b) { return a.weight > b.weight; });
+    runs.resize(12);
+    std::stable_sort(runs.begin(), runs.end(), [](const Run& a, const Run& b) {
+      return a.span.t_start_s < b.span.t_start_s;
+    });
+  }
+  std::vector<TimeSpan> out;
+  for (const Run& r : runs) out.push_back(r.span);
+  return out;
+}
+
+// -----------------------------------------------------------------------------------------
+// Reading a free fit against the physics chain
+// -----------------------------------------------------------------------------------------
+
+// The physics chain (Eqs. 11-13) predicts real poles and a step response that rises to
+// its final value without falling back. A free fit that shows a fall-back has absorbed
+// back-relaxation (a slow pole-zero pair). Measured on the exact step response after the
+// fast transients (5 time constants of every mode faster than 5 s, oscillatory ones
+// included, after the dead time): the largest excess over the final value, as a share of
+// it, and the time constant of the decay from the peak back to the final value.
+struct FallBack {
+  double share = 0.0;
+  double peak_time_s = 0.0;
+  double tau_s = 0.0;
+};
+
+FallBack StepFallBack(const TransferFunction& tf) {
+  FallBack result;
+  const double K = DcGain(tf);
+  if (!std::isfinite(K) || K == 0.0) return result;
+  double fast = 2.0, slowest = 0.0;
+  for (const Mode& m : Modes(tf)) {
+    slowest = std::max(slowest, m.time_constant_s);
+    if (m.oscillatory || m.time_constant_s < 5.0) fast = std::max(fast, m.time_constant_s);
+  }
+  const double begin = tf.delay_s + 5.0 * fast, end = tf.delay_s + 6.0 * std::max(slowest, fast);
+  if (!(end > begin)) return result;
+  std::vector<double> t;
+  for (int i = 0; i <= 2000; ++i) t.push_back(begin + (end - begin) * i / 2000.0);
+  const std::vector<double> s = StepResponse(tf, t);
+  size_t peak = 0;
+  for (size_t i = 0; i < s.size(); ++i)
+    if ((s[i] - K) / K > (s[peak] - K) / K) peak = i;
+  result.share = std::max(0.0, (s[peak] - K) / K);
+  result.peak_time_s = t[peak];
+  // Time to fall to 1/e of the excess.
+  for (size_t i = peak; i < s.size(); ++i)
+    if ((s[i] - K) / K <= result.share / std::exp(1.0)) {
+      result.tau_s = t[i] - t[peak];
+      break;
+    }
+  if (result.tau_s == 0.0) result.share = 0.0;  // still rising at the end: no fall-back
+  return result;
+}
+
+// -----------------------------------------------------------------------------------------
+// Explanations
+// -----------------------------------------------------------------------------------------
+
+std::string Mm(double v) { return Format("%.3g mm", v); }
+
+struct HoldSummary {
+  int holds = 0;
+  double mean_duration_s = 0.0;
+  double level_V = 0.0;  // the most held |level|
+};
+
+HoldSummary Holds(const Data& data) {
+  HoldSummary h;
+  std::vector<double> duration_at(data.abs_levels_V.size(), 0.0);
+  double total = 0.0;
+  for (const Plateau& p : data.levels.plateaus) {
+    if (p.level < 0) continue;
+    ++h.holds;
+    const double d = p.t_end_s - p.t_start_s;
+    total += d;
+    const double v = std::abs(p.voltage_V);
+    for (size_t i = 0; i < data.abs_levels_V.size(); ++i)
+      if (std::abs(v - data.abs_levels_V[i]) <= std::max(data.levels.tolerance_V, 0.05 * v))
+        duration_at[i] += d;
+  }
+  if (h.holds > 0) h.mean_duration_s = total / h.holds;
+  if (!duration_at.empty())
+    h.level_V = data.abs_levels_V[static_cast<size_t>(
+        std::max_element(duration_at.begin(), duration_at.end()) - duration_at.begin())];
+  return h;
+}
+
+std::string Explain(const Effect& e, const Data& data, std::span<const double> delta,
+                    double before_mm, double after_mm, const std::string& model_words) {
+  const HoldSummary holds = Holds(data);
+  double peak = 0.0;
+  for (double d : delta) peak = std::max(peak, std::abs(d));
+  std::string text;
+  const std::string where_holds = holds.holds > 0
+                                      ? "during the " + std::to_string(holds.holds) + " holds" +
+                                            Format(" (%.0f s on average", holds.mean_duration_s) +
+                                            Format(", mostly at %.3g V)", holds.level_V)
+                                      : "under sustained voltage";
+  switch (e.kind) {
+    case EffectKind::kBackRelaxation:
+      text = where_holds + " the measured deflection falls back up to " + Mm(peak) +
+             Format(" with a %.0f s time constant", e.params[1]) + " while " + model_words +
+             " holds steady: back-relaxation";
+      break;
+    case EffectKind::kCreep:
+      text = where_holds + " the measured deflection keeps growing, up to " + Mm(peak) +
+             Format(" beyond the model with a %.0f s time constant", e.params[1]) + ": creep";
+      break;
+    case EffectKind::kCycleDegradation:
+      text = Format(
+                 "the response shrinks as charge is transferred: by the end of the recording the "
+                 "gain is %.1f %% ",
+                 100.0 * std::abs(e.params[0])) +
+             (e.params[0] >= 0 ? "lower" : "higher") + " than at its start (up to " + Mm(peak) +
+             " at the last cycles): cycle degradation";
+      break;
+    case EffectKind::kHysteresis:
+      text = "whenever the motion reverses, the measured deflection lags " + model_words +
+             " by up to " + Mm(std::abs(e.params[0])) + ", switching over the first " +
+             Mm(e.params[1]) +
+             " of travel, at any rate, and keeps that offset while the voltage holds and at rest: "
+             "hysteresis";
+      break;
+    case EffectKind::kElectrolysisSaturation:
+      text = Format("above %.2f V", e.params[0]) +
+             Format(" the deflection grows only %.3g times as fast with voltage as ", e.params[1]) +
+             model_words + " predicts (up to " + Mm(peak) + " less): electrolysis saturation";
+      break;
+    case EffectKind::kDeadZone:
+      text = Format("the first %.2f V of every level move nothing", e.params[0]) + " (up to " +
+             Mm(peak) + " less than " + model_words + "): a dead zone";
+      break;
+    case EffectKind::kSensorDrift:
+      text = "the measured baseline drifts by " + Mm(e.params[1]) + " over the recording (offset " +
+             Mm(e.params[0]) + ", mid-recording bow " + Mm(e.params[2]) +
+             ") with no relation to the voltage, also at rest: sensor drift";
+      break;
+    case EffectKind::kPolarityAsymmetry:
+      text = Format("negative voltage moves the beam %.3g times as much as ", e.params[0]) +
+             model_words + " predicts (up to " + Mm(peak) + "): polarity asymmetry";
+      break;
+  }
+  text += ", which " + model_words + " leaves out; adding it cut held-out RMSE from " +
+          Format("%.3g", before_mm) + " to " + Format("%.3g mm", after_mm);
+  return text;
+}
+
+}  // namespace
+
+// -----------------------------------------------------------------------------------------
+// Public catalogue functions
+// -----------------------------------------------------------------------------------------
+
+const char* EffectName(EffectKind kind) { return Info(kind).name; }
+
+bool ParseEffectName(const std::string& name, EffectKind* kind) {
+  for (const EffectInfo& info : Catalogue())
+    if (name == info.name) {
+      *kind = info.kind;
+      return true;
+    }
+  return false;
+}
+
+std::vector<EffectKind> AllEffects() {
+  std::vector<EffectKind> kinds;
+  for (const EffectInfo& info : Catalogue()) kinds.push_back(info.kind);
+  return kinds;
+}
+
+const char* EffectDescription(EffectKind kind) { return Info(kind).description; }
+
+std::vector<std::string> EffectParameterNames(EffectKind kind) { return Info(kind).params; }
+
+Effect EffectFromAugmentation(const Augmentation& augmentation) {
+  Effect effect;
+  if (!ParseEffectName(augmentation.effect, &effect.kind))
+    throw InputError("augmentation \"" + augmentation.effect + "\": unknown effect");
+  for (const std::string& name : Info(effect.kind).params) {
+    const auto it = augmentation.params.find(name);
+    if (it == augmentation.params.end() || !it->is_number() || !std::isfinite(it->get<double>()))
+      throw InputError("augmentation \"" + augmentation.effect + "\": parameter " + name +
+                       " must be a finite number");
+    effect.params.push_back(it->get<double>());
+  }
+  return effect;
+}
+
+Augmentation AugmentationOf(const Effect& effect) {
+  Augmentation a;
+  a.effect = EffectName(effect.kind);
+  for (size_t i = 0; i < effect.params.size(); ++i)
+    a.params[Info(effect.kind).params[i]] = effect.params[i];
+  return a;
+}
+
+std::vector<double> SimulateAugmented(const TsModel& baseline, const Recording& recording,
+                                      const std::vector<Effect>& effects) {
+  for (const Effect& e : effects)
+    if (e.params.size() != Info(e.kind).params.size())
+      throw std::invalid_argument(std::string("effect ") + EffectName(e.kind) + " needs " +
+                                  std::to_string(Info(e.kind).params.size()) + " parameters");
+  Data data;
+  data.rec = &recording;
+  return Predict(data, Augmented{&baseline, effects});
+}
+
+// -----------------------------------------------------------------------------------------
+// Diagnose
+// -----------------------------------------------------------------------------------------
+
+Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_model,
+                   const DiagnoseOptions& options) {
+  if (!(options.heldout_blocks >= 1 && options.heldout_blocks <= 20 &&
+        options.heldout_fraction > 0 && options.heldout_fraction <= 0.5 &&
+        options.false_alarm_rate > 0 && options.false_alarm_rate < 1 &&
+        options.min_effect_to_noise >= 0 && options.max_effects >= 1))
+    throw std::invalid_argument("diagnosis options out of range");
+  const size_t n = rec.t_s.size();
+  if (rec.deflection_mm.size() != n || rec.voltage_V.size() != n)
+    throw InputError(rec.source + ": diagnosis needs time, voltage and deflection columns");
+  if (n < 200)
+    throw InputError(rec.source + ": " + std::to_string(n) +
+                     " samples; diagnosis needs at least 200");
+  std::string why;
+  if (trusted_model && !IsValid(*trusted_model, &why)) throw std::invalid_argument("model: " + why);
+
+  Diagnosis result;
+  result.trusted_model = trusted_model.has_value();
+  Data data;
+  data.rec = &rec;
+  data.duration_s = rec.t_s.back() - rec.t_s.front();
+  {
+    std::vector<double> steps;
+    for (size_t k = 1; k < n; ++k) steps.push_back(rec.t_s[k] - rec.t_s[k - 1]);
+    std::nth_element(steps.begin(), steps.begin() + static_cast<long>(steps.size() / 2),
+                     steps.end());
+    data.dt_s = steps[steps.size() / 2];
+  }
+  for (double v : rec.voltage_V) data.max_abs_V = std::max(data.max_abs_V, std::abs(v));
+  if (data.max_abs_V == 0.0) throw InputError(rec.source + ": the voltage is 0 throughout");
+  try {
+    data.levels = DetectLevels(rec.t_s, rec.voltage_V);
+  } catch (const InputError&) {
+    // E.g. a level held from the first sample, never entered: diagnosis only needs the
+    // plateaus and levels, so they are found again with that check relaxed (a recording
+    // starts at rest, so its first sample is a step from 0 V).
+    const size_t pad = static_cast<size_t>(std::ceil(5.0 / data.dt_s));  // 5 s at rest
+    Recording padded;
+    for (size_t i = pad; i > 0; --i) {
+      padded.t_s.push_back(rec.t_s.front() - static_cast<double>(i) * data.dt_s);
+      padded.voltage_V.push_back(0.0);
+    }
+    padded.t_s.insert(padded.t_s.end(), rec.t_s.begin(), rec.t_s.end());
+    padded.voltage_V.insert(padded.voltage_V.end(), rec.voltage_V.begin(), rec.voltage_V.end());
+    data.levels = DetectLevels(padded.t_s, padded.voltage_V);
+    std::erase_if(data.levels.plateaus, [pad](const Plateau& p) { return p.end <= pad; });
+    for (Plateau& p : data.levels.plateaus) {
+      p.begin = p.begin > pad ? p.begin - pad : 0;
+      p.end -= pad;
+    }
+  }
+  data.rest_band_V = std::max(data.levels.rest_band_V, 0.02 * data.max_abs_V);
+  for (const VoltageLevel& level : data.levels.levels) {
+    const double a = std::abs(level.level_V);
+    if (a <= data.rest_band_V) continue;
+    bool merged = false;
+    for (double& known : data.abs_levels_V)
+      if (std::abs(known - a) <= std::max(data.levels.tolerance_V, 0.05 * a)) merged = true;
+    if (!merged) data.abs_levels_V.push_back(a);
+  }
+  std::sort(data.abs_levels_V.begin(), data.abs_levels_V.end());
+  if (!data.levels.plateau_input) {
+    // A continuous input: its spread of |u| stands in for the levels.
+    std::vector<double> a;
+    for (double v : rec.voltage_V)
+      if (std::abs(v) > data.rest_band_V) a.push_back(std::abs(v));
+    std::sort(a.begin(), a.end());
+    data.abs_levels_V.clear();
+    if (!a.empty()) {
+      const double p10 = a[a.size() / 10], p90 = a[a.size() * 9 / 10];
+      data.abs_levels_V.push_back(p10);
+      if (p90 > 1.3 * p10) data.abs_levels_V.push_back(p90);
+    }
+  }
+
+  // 1. Held-out blocks: block j ends at j / K of the duration.
+  const double t0 = rec.t_s.front();
+  const double block = options.heldout_fraction * data.duration_s / options.heldout_blocks;
+  for (int j = 1; j <= options.heldout_blocks; ++j) {
+    const double end = t0 + data.duration_s * j / options.heldout_blocks;
+    result.heldout.push_back({end - block, end});
+  }
+  for (size_t k = 0; k < n; ++k) {
+    bool held = false;
+    for (const TimeSpan& s : result.heldout)
+      held |= rec.t_s[k] >= s.t_start_s && rec.t_s[k] <= s.t_end_s;
+    (held ? data.heldout : data.train).push_back(k);
+  }
+  data.noise_mm = NoiseFromSecondDifferences(rec.deflection_mm);
+  {
+    double peak = 0.0;
+    for (double y : rec.deflection_mm) peak = std::max(peak, std::abs(y));
+    data.noise_mm = std::max(data.noise_mm, 1e-4 * peak);  // noise-free data
+  }
+  result.noise_std_mm = data.noise_mm;
+
+  // 2. Baseline.
+  const std::string model_words = trusted_model ? "the model" : "the identified model";
+  if (trusted_model) {
+    result.baseline_model = *trusted_model;
+  } else {
+    // The held-out deflection never reaches the identification: the samples there are
+    // replaced by a straight line between their training neighbours (they enter only the
+    // linear starting estimate's regressors, identify_ts.h) and are excluded from the fit.
+    Recording training = rec;
+    for (const TimeSpan& s : result.heldout) {
+      size_t a = 0;
+      while (a < n && rec.t_s[a] < s.t_start_s) ++a;
+      size_t b = a;
+      while (b < n && rec.t_s[b] <= s.t_end_s) ++b;
+      const double left = a > 0 ? rec.deflection_mm[a - 1] : (b < n ? rec.deflection_mm[b] : 0.0);
+      const double right = b < n ? rec.deflection_mm[b] : left;
+      for (size_t k = a; k < b; ++k) {
+        const double w = static_cast<double>(k - a + 1) / static_cast<double>(b - a + 1);
+        training.deflection_mm[k] = (1 - w) * left + w * right;
+      }
+    }
+    TsIdentifyOptions identify;
+    for (const TimeSpan& s : result.heldout)
+      identify.excluded_spans_s.emplace_back(s.t_start_s, s.t_end_s + 0.5 * data.dt_s);
+    const TsEstimate estimate = IdentifyTsModel({training}, identify);
+    result.baseline_model = estimate.model;
+    for (const std::string& note : estimate.notes) result.notes.push_back(note);
+    // Read each local model against the physics chain.
+    for (const LocalModel& rule : result.baseline_model.rules) {
+      const FallBack fall = StepFallBack(rule.tf);
+      const double amplitude_mm = fall.share * std::abs(DcGain(rule.tf) * rule.level_V);
+      if (fall.share < 0.01 || amplitude_mm < 2.0 * data.noise_mm) continue;
+      Absorbed absorbed;
+      absorbed.effect = "back_relaxation";
+      absorbed.level_V = rule.level_V;
+      absorbed.tau_s = fall.tau_s;
+      absorbed.fall_back = fall.share;
+      absorbed.amplitude_mm = amplitude_mm;
+      absorbed.explanation =
+          Format("the model identified at %.3g V rises ", rule.level_V) + Mm(amplitude_mm) +
+          Format(" (%.1f %%) above its final value", 100.0 * fall.share) +
+          Format(" and falls back with a %.0f s time constant", fall.tau_s) +
+          ", while the physics chain (Eqs. 11-13) predicts a rise without falling back: the "
+          "free fit absorbed back-relaxation as a slow pole-zero pair";
+      result.absorbed.push_back(absorbed);
+    }
+  }
+  const TsModel& baseline = result.baseline_model;
+  if (trusted_model) {
+    for (const Effect& e : options.baseline_effects)
+      if (e.params.size() != Info(e.kind).params.size())
+        throw std::invalid_argument(std::string("effect ") + EffectName(e.kind) +
+                                    ": wrong parameter count");
+    data.given = options.baseline_effects;
+  }
+  result.baseline_mm = Predict(data, Augmented{&baseline, {}});
+  for (double y : result.baseline_mm)
+    if (!std::isfinite(y))
+      throw InputError(rec.source + ": the baseline model's prediction is not finite");
+
+  {
+    // Step-timing nuisance (Data::edges_*): one regressor per sample where the voltage
+    // steps, the baseline's response to the previous sample's voltage moving halfway to the
+    // new one. Continuous inputs (more than one step per 50 samples) get none.
+    const double step_V = std::max(5.0 * data.levels.tolerance_V, 0.05 * data.max_abs_V);
+    std::vector<size_t> edges;
+    for (size_t k = 1; k < n; ++k)
+      if (std::abs(rec.voltage_V[k] - rec.voltage_V[k - 1]) > step_V) edges.push_back(k);
+    if (!edges.empty() && edges.size() <= n / 50) {
+      Eigen::MatrixXd g(static_cast<long>(n), static_cast<long>(edges.size()));
+      for (size_t e = 0; e < edges.size(); ++e) {
+        std::vector<double> u = rec.voltage_V;
+        u[edges[e] - 1] += 0.5 * (u[edges[e]] - u[edges[e] - 1]);
+        const std::vector<double> y = Simulate(baseline, rec.t_s, u);
+        for (size_t k = 0; k < n; ++k)
+          g(static_cast<long>(k), static_cast<long>(e)) = y[k] - result.baseline_mm[k];
+      }
+      auto basis = [&](const std::vector<size_t>& index) {
+        Eigen::MatrixXd rows(static_cast<long>(index.size()), g.cols());
+        for (size_t i = 0; i < index.size(); ++i)
+          rows.row(static_cast<long>(i)) = g.row(static_cast<long>(index[i]));
+        Eigen::ColPivHouseholderQR<Eigen::MatrixXd> qr(rows);
+        qr.setThreshold(1e-6);
+        const long rank = qr.rank();
+        Eigen::MatrixXd q = qr.householderQ() * Eigen::MatrixXd::Identity(rows.rows(), rank);
+        return q;
+      };
+      data.edges_train = basis(data.train);
+      data.edges_heldout = basis(data.heldout);
+    }
+  }
+  FitProblem reference_problem;
+  reference_problem.fixed = Augmented{&baseline, {}};
+  const FitResult reference = FitParameters(data, reference_problem, &result.baseline_mm);
+
+  const std::vector<double> r0 = Residual(rec.deflection_mm, result.baseline_mm);
+  {
+    std::vector<double> measured, predicted, input;
+    for (size_t k : data.train) {
+      measured.push_back(rec.deflection_mm[k]);
+      predicted.push_back(result.baseline_mm[k]);
+      input.push_back(rec.voltage_V[k]);
+    }
+    result.localisation.baseline_fit = FitFiguresOf(measured, predicted, input);
+    result.baseline_fit_percent = result.localisation.baseline_fit.fit_percent;
+    result.baseline_rmse_mm = result.localisation.baseline_fit.rmse_mm;
+  }
+  result.baseline_heldout_rmse_mm = RmsOver(r0, data.heldout);
+  double dead_time = 0.0;
+  for (const LocalModel& rule : baseline.rules) dead_time = std::max(dead_time, rule.tf.delay_s);
+  result.localisation.groups = GroupResiduals(data, r0, result.baseline_mm, dead_time + 10.0);
+
+  // 4-5. Candidates, forward selection.
+  std::vector<EffectKind> kinds;
+  for (EffectKind kind : AllEffects()) {
+    if (kind == EffectKind::kCreep) continue;  // fitted together with back-relaxation
+    std::string reason;
+    if (Applicable(kind, data, &reason)) {
+      kinds.push_back(kind);
+    } else {
+      CandidateReport report;
+      report.kind = kind;
+      report.name = EffectName(kind);
+      report.reason = "not tried: " + reason;
+      result.candidates.push_back(std::move(report));
+    }
+  }
+  const double tests = static_cast<double>(kinds.size() + 1);
+  const double level = 1.0 - options.false_alarm_rate / tests;
+  const double n_train = static_cast<double>(data.train.size());
+
+  FitResult current = reference;
+  std::vector<EffectKind> chosen;
+  std::vector<CandidateReport> round_reports;
+  for (int round = 0; round < options.max_effects; ++round) {
+    const std::vector<double> current_r = Residual(rec.deflection_mm, current.prediction);
+    const double sse0 = current.train_sse;
+    const std::vector<double> current_w = ScaledResidual(data, current.prediction);
+    const double sse0_h = SumSquares(current_w, data.heldout);
+    std::vector<std::pair<CandidateReport, FitResult>> claimed;
+    for (EffectKind kind : kinds) {
+      if (std::find(chosen.begin(), chosen.end(), kind) != chosen.end()) continue;
+      if (round > 0) {
+        // Only effects that stood on their own against the baseline are combined.
+        bool was_claimed = false;
+        for (const CandidateReport& c : round_reports)
+          was_claimed |= c.claimed && (c.kind == kind || (kind == EffectKind::kBackRelaxation &&
+                                                          c.kind == EffectKind::kCreep));
+        if (!was_claimed) continue;
+      }
+      // Back-relaxation and creep share one model with opposite signs: fit both, keep
+      // the better.
+      std::vector<EffectKind> variants = {kind};
+      if (kind == EffectKind::kBackRelaxation) variants.push_back(EffectKind::kCreep);
+      FitResult fit;
+      EffectKind fitted_kind = kind;
+      for (EffectKind variant : variants) {
+        FitProblem problem;
+        problem.fixed = current.model;
+        // Effects chosen so far are refitted together with the new one.
+        problem.fixed.effects.clear();
+        for (const Effect& e : current.model.effects) {
+          problem.kinds.push_back(e.kind);
+          std::vector<ParameterSpec> specs = SpecsFor(e.kind, data);
+          for (size_t j = 0; j < specs.size(); ++j) specs[j].starts = {e.params[j]};
+          problem.specs.insert(problem.specs.end(), specs.begin(), specs.end());
+        }
+        problem.kinds.push_back(variant);
+        const std::vector<ParameterSpec> specs = SpecsFor(variant, data);
+        problem.specs.insert(problem.specs.end(), specs.begin(), specs.end());
+        FitResult f = FitParameters(data, problem, &result.baseline_mm);
+        if (f.train_sse < fit.train_sse) {
+          fit = std::move(f);
+          fitted_kind = variant;
+        }
+      }
+      CandidateReport report;
+      report.kind = fitted_kind;
+      report.name = EffectName(fitted_kind);
+      const std::vector<double> r1 = Residual(rec.deflection_mm, fit.prediction);
+      const Effect& added = fit.model.effects.back();
+      const size_t offset = fit.theta.size() - added.params.size();
+      for (size_t j = 0; j < added.params.size(); ++j)
+        report.params.push_back({Info(fitted_kind).params[j], added.params[j],
+                                 fit.half_width.empty() ? kInf : fit.half_width[offset + j]});
+      report.train_rmse_mm = std::sqrt(fit.train_sse / n_train);
+      report.heldout_rmse_mm = RmsOver(r1, data.heldout);
+      const std::vector<double> w1 = ScaledResidual(data, fit.prediction);
+      report.effective_samples = EffectiveSamples(w1, data.train);
+      const int k = static_cast<int>(added.params.size());
+      report.likelihood_ratio =
+          report.effective_samples * std::log(sse0 / std::max(fit.train_sse, 1e-300));
+      const double sse1_h = SumSquares(w1, data.heldout);
+      const double n_eff_h = EffectiveSamples(w1, data.heldout);
+      report.heldout_likelihood_ratio = n_eff_h * std::log(sse0_h / std::max(sse1_h, 1e-300));
+      report.bic = report.effective_samples * std::log(fit.train_sse / n_train) +
+                   static_cast<double>(fit.theta.size()) * std::log(report.effective_samples);
+      // What it adds, over the samples it touches.
+      std::vector<double> delta(n);
+      double peak = 0.0;
+      for (size_t i = 0; i < n; ++i) {
+        delta[i] = fit.prediction[i] - current.prediction[i];
+        peak = std::max(peak, std::abs(delta[i]));
+      }
+      double sum = 0.0;
+      size_t touched = 0;
+      for (double d : delta)
+        if (std::abs(d) > 0.05 * peak) {
+          sum += d * d;
+          ++touched;
+        }
+      report.effect_rms_mm = touched ? std::sqrt(sum / static_cast<double>(touched)) : 0.0;
+      const double lr_threshold = ChiSquareQuantile(level, k);
+      const double heldout_threshold = ChiSquareQuantile(level, 1);
+      if (!(report.likelihood_ratio > lr_threshold)) {
+        report.reason =
+            Format("training evidence too weak (likelihood ratio %.1f", report.likelihood_ratio) +
+            Format(" <= %.1f)", lr_threshold);
+      } else if (!(report.heldout_likelihood_ratio > heldout_threshold)) {
+        report.reason =
+            Format("does not predict the held-out samples better (likelihood ratio %.1f",
+                   report.heldout_likelihood_ratio) +
+            Format(" <= %.1f)", heldout_threshold);
+      } else if (!(report.heldout_rmse_mm < RmsOver(current_r, data.heldout))) {
+        report.reason = "the held-out RMSE does not fall (" + Mm(RmsOver(current_r, data.heldout)) +
+                        " -> " + Mm(report.heldout_rmse_mm) + ")";
+      } else if (report.effect_rms_mm < options.min_effect_to_noise * data.noise_mm) {
+        report.reason = "real but negligible: adds " + Mm(report.effect_rms_mm) +
+                        Format(", under %.2g times the noise", options.min_effect_to_noise);
+      } else {
+        report.claimed = true;
+        report.reason = "claimed";
+      }
+      report.round = round;
+      round_reports.push_back(report);
+      if (report.claimed) claimed.emplace_back(std::move(report), std::move(fit));
+    }
+    if (claimed.empty()) break;
+    // The verdict of this round: the lowest information criterion.
+    size_t best = 0;
+    for (size_t i = 1; i < claimed.size(); ++i)
+      if (claimed[i].first.bic < claimed[best].first.bic) best = i;
+    auto& [report, fit] = claimed[best];
+    Finding finding;
+    finding.effect = report.name;
+    finding.params = report.params;
+    finding.heldout_rmse_before_mm = RmsOver(current_r, data.heldout);
+    finding.heldout_rmse_after_mm = report.heldout_rmse_mm;
+    finding.model = fit.model.effects.back();
+    std::vector<double> delta(n);
+    double peak = 0.0;
+    for (size_t i = 0; i < n; ++i) {
+      delta[i] = fit.prediction[i] - current.prediction[i];
+      peak = std::max(peak, std::abs(delta[i]));
+    }
+    finding.where = Spans(rec, delta, std::max(0.5 * data.noise_mm, 0.3 * peak), 5.0);
+    finding.explanation = Explain(finding.model, data, delta, finding.heldout_rmse_before_mm,
+                                  finding.heldout_rmse_after_mm, model_words);
+    // Parameters of earlier findings move slightly in the joint refit.
+    for (size_t i = 0; i < result.findings.size(); ++i)
+      result.findings[i].model = fit.model.effects[i];
+    result.findings.push_back(std::move(finding));
+    chosen.push_back(report.kind == EffectKind::kCreep ? EffectKind::kBackRelaxation : report.kind);
+    current = std::move(fit);
+  }
+  for (CandidateReport& c : round_reports) result.candidates.push_back(std::move(c));
+  // What the free fit absorbed is a finding too (its before/after are the same model: the
+  // identified baseline already contains it).
+  if (!result.absorbed.empty()) {
+    const auto largest = std::max_element(
+        result.absorbed.begin(), result.absorbed.end(),
+        [](const Absorbed& a, const Absorbed& b) { return a.amplitude_mm < b.amplitude_mm; });
+    Finding finding;
+    finding.effect = largest->effect;
+    finding.explanation = largest->explanation + "; its held-out RMSE with it is " +
+                          Mm(result.baseline_heldout_rmse_mm);
+    finding.params = {{"fall_back", largest->fall_back, kInf},
+                      {"tau_s", largest->tau_s, kInf},
+                      {"level_V", largest->level_V, 0.0}};
+    finding.heldout_rmse_before_mm = result.baseline_heldout_rmse_mm;
+    finding.heldout_rmse_after_mm = result.baseline_heldout_rmse_mm;
+    finding.model = Effect{EffectKind::kBackRelaxation, {largest->fall_back, largest->tau_s}};
+    result.findings.insert(result.findings.begin(), std::move(finding));
+  }
+  result.verdict = result.findings.empty() ? "none" : result.findings.front().effect;
+  result.augmented_mm = result.findings.empty() ? result.baseline_mm : current.prediction;
+  return result;
+}
+
+namespace {
+
+nlohmann::json Finite(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(); }
+
+nlohmann::json SpansToJson(const std::vector<TimeSpan>& spans) {
+  nlohmann::json out = nlohmann::json::array();
+  for (const TimeSpan& s : spans)
+    out.push_back({{"t_start_s", s.t_start_s}, {"t_end_s", s.t_end_s}});
+  return out;
+}
+
+void ParamsToJson(const std::vector<ParameterEstimate>& params, nlohmann::json* out) {
+  nlohmann::json values = nlohmann::json::object(), widths = nlohmann::json::object();
+  for (const ParameterEstimate& p : params) {
+    values[p.name] = Finite(p.value);
+    widths[p.name] = Finite(p.half_width_95);
+  }
+  (*out)["params"] = values;
+  (*out)["params_95"] = widths;
+}
+
+}  // namespace
+
+nlohmann::json DiagnosisToJson(const Diagnosis& d) {
+  nlohmann::json out;
+  out["verdict"] = d.verdict;
+  out["baseline"] = {{"fit_percent", Finite(d.baseline_fit_percent)},
+                     {"rmse_mm", Finite(d.baseline_rmse_mm)},
+                     {"heldout_rmse_mm", Finite(d.baseline_heldout_rmse_mm)},
+                     {"source", d.trusted_model ? "trusted model" : "identified on the recording"}};
+  nlohmann::json findings = nlohmann::json::array();
+  for (const Finding& f : d.findings) {
+    nlohmann::json j = {{"effect", f.effect},
+                        {"explanation", f.explanation},
+                        {"where", SpansToJson(f.where)},
+                        {"heldout_rmse_before_mm", Finite(f.heldout_rmse_before_mm)},
+                        {"heldout_rmse_after_mm", Finite(f.heldout_rmse_after_mm)}};
+    ParamsToJson(f.params, &j);
+    findings.push_back(std::move(j));
+  }
+  out["findings"] = std::move(findings);
+  out["noise_std_mm"] = d.noise_std_mm;
+  out["heldout"] = SpansToJson(d.heldout);
+  nlohmann::json candidates = nlohmann::json::array();
+  for (const CandidateReport& c : d.candidates) {
+    nlohmann::json j = {{"effect", c.name},
+                        {"round", c.round},
+                        {"claimed", c.claimed},
+                        {"reason", c.reason},
+                        {"train_rmse_mm", Finite(c.train_rmse_mm)},
+                        {"heldout_rmse_mm", Finite(c.heldout_rmse_mm)},
+                        {"effective_samples", Finite(c.effective_samples)},
+                        {"likelihood_ratio", Finite(c.likelihood_ratio)},
+                        {"heldout_likelihood_ratio", Finite(c.heldout_likelihood_ratio)},
+                        {"bic", Finite(c.bic)},
+                        {"effect_rms_mm", Finite(c.effect_rms_mm)}};
+    ParamsToJson(c.params, &j);
+    candidates.push_back(std::move(j));
+  }
+  out["candidates"] = std::move(candidates);
+  nlohmann::json groups = nlohmann::json::array();
+  for (const ResidualGroup& g : d.localisation.groups)
+    groups.push_back({{"dimension", g.dimension},
+                      {"group", g.group},
+                      {"samples", g.samples},
+                      {"mean_mm", Finite(g.mean_mm)},
+                      {"rms_mm", Finite(g.rms_mm)}});
+  out["localisation"] = {{"residual_groups", std::move(groups)},
+                         {"baseline_fit", FitFiguresToJson(d.localisation.baseline_fit)}};
+  nlohmann::json absorbed = nlohmann::json::array();
+  for (const Absorbed& a : d.absorbed)
+    absorbed.push_back({{"effect", a.effect},
+                        {"level_V", a.level_V},
+                        {"tau_s", Finite(a.tau_s)},
+                        {"fall_back", a.fall_back},
+                        {"amplitude_mm", a.amplitude_mm},
+                        {"explanation", a.explanation}});
+  out["absorbed"] = std::move(absorbed);
+  out["notes"] = d.notes;
+  return out;
+}
+
+}  // namespace flexid::model

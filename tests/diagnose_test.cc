@@ -1,0 +1,96 @@
+// Diagnosis on the recordings shipped in examples/concealed/ (made by flexid-rig with one
+// effect or none concealed at a few times the sensor noise): the verdict is checked against
+// tests/concealed_answers.txt, which the diagnosis never sees. Plus the catalogue's
+// augmentation round trip and bad input.
+#include "model/diagnose.h"
+
+#include <gtest/gtest.h>
+
+#include <fstream>
+#include <map>
+#include <sstream>
+#include <string>
+
+#include "model/errors.h"
+#include "model/model_file.h"
+#include "model/presets.h"
+#include "model/recording.h"
+
+namespace flexid {
+namespace {
+
+std::map<std::string, std::string> Answers() {
+  std::ifstream in(std::string(FLEXID_SOURCE_DIR) + "/tests/concealed_answers.txt");
+  std::map<std::string, std::string> answers;
+  std::string file, effect;
+  while (in >> file >> effect) answers[file] = effect;
+  return answers;
+}
+
+TEST(DiagnoseConcealed, NamesEveryShippedRecordingsEffect) {
+  const auto answers = Answers();
+  ASSERT_EQ(answers.size(), 8u);
+  const model::TsModel trusted = model::AsTsModel(
+      model::ReadModelFile(std::string(FLEXID_SOURCE_DIR) + "/examples/seed-8V.json"));
+  for (const auto& [file, effect] : answers) {
+    const model::Recording rec =
+        model::ReadRecordingCsv(std::string(FLEXID_SOURCE_DIR) + "/examples/concealed/" + file);
+    const model::Diagnosis d = model::Diagnose(rec, trusted);
+    EXPECT_EQ(d.verdict, effect) << file;
+    if (effect == "none") {
+      EXPECT_TRUE(d.findings.empty()) << file;
+      continue;
+    }
+    ASSERT_FALSE(d.findings.empty()) << file;
+    // Concealed at 2.5-3.5 times the noise: the augmented model halves the held-out error.
+    EXPECT_LT(d.findings[0].heldout_rmse_after_mm, 0.5 * d.findings[0].heldout_rmse_before_mm)
+        << file;
+    EXPECT_FALSE(d.findings[0].where.empty()) << file;
+    EXPECT_NE(d.findings[0].explanation.find(effect == "electrolysis_saturation"
+                                                 ? "electrolysis"
+                                                 : effect.substr(0, effect.find('_'))),
+              std::string::npos)
+        << d.findings[0].explanation;
+  }
+}
+
+TEST(DiagnoseCatalogue, AugmentationsRoundTripAndBadOnesAreNamed) {
+  for (model::EffectKind kind : model::AllEffects()) {
+    model::Effect e{kind, {}};
+    for (size_t i = 0; i < model::EffectParameterNames(kind).size(); ++i)
+      e.params.push_back(0.1 * static_cast<double>(i + 1));
+    const model::Effect back = model::EffectFromAugmentation(model::AugmentationOf(e));
+    EXPECT_EQ(back.kind, kind);
+    EXPECT_EQ(back.params, e.params);
+  }
+  model::Augmentation unknown{"gremlins", nlohmann::json::object()};
+  EXPECT_THROW(model::EffectFromAugmentation(unknown), model::InputError);
+  model::Augmentation missing{"back_relaxation", {{"fraction", 0.1}}};
+  try {
+    model::EffectFromAugmentation(missing);
+    FAIL() << "a missing parameter was accepted";
+  } catch (const model::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("tau_s"), std::string::npos) << e.what();
+  }
+}
+
+TEST(DiagnoseInput, ShortOrConstantRecordingsAreRefused) {
+  model::Recording rec;
+  rec.source = "short.csv";
+  for (int k = 0; k < 50; ++k) {
+    rec.t_s.push_back(0.1 * k);
+    rec.voltage_V.push_back(k > 10 ? 5.0 : 0.0);
+    rec.deflection_mm.push_back(0.0);
+  }
+  EXPECT_THROW(model::Diagnose(rec, model::SingleRule(model::SeedModel8V())), model::InputError);
+  for (int k = 50; k < 400; ++k) {
+    rec.t_s.push_back(0.1 * k);
+    rec.voltage_V.push_back(0.0);
+    rec.deflection_mm.push_back(0.0);
+  }
+  for (double& v : rec.voltage_V) v = 0.0;
+  EXPECT_THROW(model::Diagnose(rec, model::SingleRule(model::SeedModel8V())), model::InputError);
+}
+
+}  // namespace
+}  // namespace flexid
