@@ -89,11 +89,12 @@ const std::vector<EffectInfo>& Catalogue() {
        true},
       {EffectKind::kSensorDrift,
        "sensor_drift",
-       "The displacement sensor's zero moves (thermal drift, a creeping mount) independent "
-       "of the actuator. Residual: a slow trend that continues at rest and does not follow "
-       "the voltage. Model: offset_mm + drift_mm x + bow_mm 4 x (1 - x), x = time as a "
-       "fraction of the recording.",
-       {"offset_mm", "drift_mm", "bow_mm"},
+       "The displacement sensor's zero moves (thermal warm-up of the sensor or the bath, a "
+       "creeping mount) independent of the actuator. Residual: a slow trend that continues "
+       "at rest and does not follow the voltage; it starts at 0 (the recording is tared). "
+       "Model: drift_mm x + warmup_mm (1 - exp(-t / warmup_tau_s)), x = time as a fraction "
+       "of the recording.",
+       {"drift_mm", "warmup_mm", "warmup_tau_s"},
        false},
       {EffectKind::kPolarityAsymmetry,
        "polarity_asymmetry",
@@ -197,7 +198,8 @@ void ApplyOutputEffect(const Effect& e, std::span<const double> t_s, std::vector
       const double t0 = t_s.front(), span = std::max(t_s.back() - t0, 1e-12);
       for (size_t k = 0; k < y.size(); ++k) {
         const double x = (t_s[k] - t0) / span;
-        y[k] += e.params[0] + e.params[1] * x + e.params[2] * 4.0 * x * (1.0 - x);
+        y[k] += e.params[0] * x +
+                e.params[1] * (1.0 - std::exp(-(t_s[k] - t0) / std::max(e.params[2], 1e-9)));
       }
       break;
     }
@@ -254,10 +256,11 @@ struct Data {
   const Recording* rec = nullptr;
   // The voltage column is sampled: where the voltage really stepped between two samples is
   // unknown, and a step's timing error leaves an error that the slow modes carry for
-  // minutes. Every model is therefore compared after projecting out, on the training and
-  // on the held-out samples separately, the baseline's response to moving each recorded
-  // step by up to half a sample (nuisance regressors; orthonormal bases, empty: none).
-  Eigen::MatrixXd edges_train, edges_heldout;
+  // minutes. Every fit and training test therefore works after projecting out the
+  // baseline's response to moving each recorded step by up to half a sample (nuisance
+  // regressors; an orthonormal basis over the training samples, empty: none). Held-out
+  // samples are never fitted, nuisance included: their figures are raw.
+  Eigen::MatrixXd edges_train;
   std::vector<Effect> given;  // part of the baseline
   std::vector<size_t> train, heldout;
   std::vector<TimeSpan> heldout_spans;
@@ -280,7 +283,6 @@ std::vector<double> ScaledResidual(const Data& data, std::span<const double> pre
     for (size_t i = 0; i < index.size(); ++i) r[index[i]] = v(static_cast<long>(i));
   };
   project(data.train, data.edges_train);
-  project(data.heldout, data.edges_heldout);
   return r;
 }
 
@@ -297,20 +299,21 @@ std::vector<double> Predict(const Data& data, const Augmented& a,
   const Recording& rec = *data.rec;
   bool any_input = false;
   for (const Effect& e : a.effects) any_input |= Info(e.kind).input_side;
+  std::vector<double> u = rec.voltage_V;  // the voltage the gel responds to
+  for (const auto* list : {&data.given, &a.effects})
+    for (const Effect& e : *list)
+      if (Info(e.kind).input_side) ApplyInputEffect(e, rec.t_s, &u);
+  auto output_effect = [&](const Effect& e, std::vector<double>* y) {
+    if (!Info(e.kind).input_side) ApplyOutputEffect(e, rec.t_s, y);
+  };
   std::vector<double> y;
   if (!any_input && cache) {
     y = *cache;  // the baseline with the given effects
   } else {
-    std::vector<double> u = rec.voltage_V;
-    for (const auto* list : {&data.given, &a.effects})
-      for (const Effect& e : *list)
-        if (Info(e.kind).input_side) ApplyInputEffect(e, rec.t_s, &u);
     y = Simulate(*a.baseline, rec.t_s, u);
-    for (const Effect& e : data.given)
-      if (!Info(e.kind).input_side) ApplyOutputEffect(e, rec.t_s, &y);
+    for (const Effect& e : data.given) output_effect(e, &y);
   }
-  for (const Effect& e : a.effects)
-    if (!Info(e.kind).input_side) ApplyOutputEffect(e, rec.t_s, &y);
+  for (const Effect& e : a.effects) output_effect(e, &y);
   return y;
 }
 
@@ -469,6 +472,8 @@ std::vector<ParameterSpec> SpecsFor(EffectKind kind, const Data& data) {
         std::minmax_element(data.rec->deflection_mm.begin(), data.rec->deflection_mm.end());
     range_mm = *hi - *lo;
   }
+  // Relaxations faster than 10 s belong to the actuator's own charging dynamics (the seed's
+  // fast modes), not to a slow effect after the response.
   const double tau_lo = std::max(5.0 * dt, 1.0), tau_hi = std::max(3.0 * D, tau_lo * 2);
   auto taus = [&] {
     std::vector<double> v;
@@ -499,7 +504,7 @@ std::vector<ParameterSpec> SpecsFor(EffectKind kind, const Data& data) {
     case EffectKind::kDeadZone:
       return {{0.0, 0.9 * std::max(low, 1e-9), {0.1 * low, 0.4 * low}}};
     case EffectKind::kSensorDrift:
-      return {{-kInf, kInf, {0.0}}, {-kInf, kInf, {0.0}}, {-kInf, kInf, {0.0}}};
+      return {{-kInf, kInf, {0.0}}, {-kInf, kInf, {0.0}}, {tau_lo, 5.0 * D, {0.1 * D, 0.5 * D}}};
     case EffectKind::kPolarityAsymmetry:
       return {{0.05, 3.0, {0.8, 1.2}}};
   }
@@ -622,7 +627,7 @@ std::vector<ResidualGroup> GroupResiduals(const Data& data, std::span<const doub
   // Direction of motion of the model's deflection.
   double range = 0.0;
   for (double y : baseline_mm) range = std::max(range, std::abs(y));
-  const double still = 1e-3 * range / std::max(data.dt_s, 1e-12);
+  const double still = 1e-3 * range / 10.0;  // mm/s: 0.1 % of the range in 10 s
   auto rate = [&](size_t k) {
     if (k == 0) return 0.0;
     return (baseline_mm[k] - baseline_mm[k - 1]) / (rec.t_s[k] - rec.t_s[k - 1]);
@@ -789,9 +794,9 @@ std::string Explain(const Effect& e, const Data& data, std::span<const double> d
              Mm(peak) + " less than " + model_words + "): a dead zone";
       break;
     case EffectKind::kSensorDrift:
-      text = "the measured baseline drifts by " + Mm(e.params[1]) + " over the recording (offset " +
-             Mm(e.params[0]) + ", mid-recording bow " + Mm(e.params[2]) +
-             ") with no relation to the voltage, also at rest: sensor drift";
+      text = "the measured baseline drifts by " + Mm(e.params[0]) + " over the recording and " +
+             Mm(e.params[1]) + Format(" in a warm-up with a %.0f s time constant", e.params[2]) +
+             ", with no relation to the voltage, also at rest: sensor drift";
       break;
     case EffectKind::kPolarityAsymmetry:
       text = Format("negative voltage moves the beam %.3g times as much as ", e.params[0]) +
@@ -987,9 +992,66 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
     TsIdentifyOptions identify;
     for (const TimeSpan& s : result.heldout)
       identify.excluded_spans_s.emplace_back(s.t_start_s, s.t_end_s + 0.5 * data.dt_s);
-    const TsEstimate estimate = IdentifyTsModel({training}, identify);
-    result.baseline_model = estimate.model;
-    for (const std::string& note : estimate.notes) result.notes.push_back(note);
+    // Two candidate baselines: the T-S blend over the recording's levels, and one transfer
+    // function for all of it (segments from the start, fitted on each training run). The
+    // blend is kept only if it earns its extra parameters on the training samples (BIC with
+    // the effective sample count); a linear actuator's staircase gives one step per level,
+    // too little to fit a local model each.
+    std::optional<TsModel> blend;
+    std::string blend_error;
+    try {
+      const TsEstimate estimate = IdentifyTsModel({training}, identify);
+      blend = estimate.model;
+      for (const std::string& note : estimate.notes) result.notes.push_back(note);
+    } catch (const std::exception& e) {
+      blend_error = e.what();
+    }
+    std::optional<TsModel> single;
+    double dt_uniform = 0.0;
+    if ((!blend || blend->rules.size() > 1) && IsUniformGrid(rec.t_s, &dt_uniform)) {
+      std::vector<DataSegment> segments;
+      for (size_t i = 0; i < data.train.size();) {
+        size_t j = i;
+        while (j + 1 < data.train.size() && data.train[j + 1] == data.train[j] + 1) ++j;
+        DataSegment seg;
+        seg.dt_s = dt_uniform;
+        const size_t end = data.train[j] + 1;
+        seg.voltage_V.assign(rec.voltage_V.begin(), rec.voltage_V.begin() + static_cast<long>(end));
+        seg.deflection_mm.assign(training.deflection_mm.begin(),
+                                 training.deflection_mm.begin() + static_cast<long>(end));
+        seg.fit_begin = data.train[i];
+        segments.push_back(std::move(seg));
+        i = j + 1;
+      }
+      try {
+        single = SingleRule(IdentifyTransferFunction(segments).tf);
+      } catch (const std::exception& e) {
+        if (!blend) throw;
+      }
+    }
+    if (!blend && !single) throw InputError(rec.source + ": " + blend_error);
+    auto bic = [&](const TsModel& m) {
+      const std::vector<double> r =
+          Residual(rec.deflection_mm, Simulate(m, rec.t_s, rec.voltage_V));
+      const double sse = SumSquares(r, data.train), n_eff = EffectiveSamples(r, data.train);
+      const double p = static_cast<double>(m.rules.size() *
+                                           (m.rules[0].tf.num.size() + m.rules[0].tf.den.size()));
+      return n_eff * std::log(sse / static_cast<double>(data.train.size())) + p * std::log(n_eff);
+    };
+    if (blend && single) {
+      const double bic_blend = bic(*blend), bic_single = bic(*single);
+      result.notes.push_back(
+          std::string("baseline: ") +
+          (bic_blend < bic_single
+               ? "the T-S blend of " + std::to_string(blend->rules.size()) + " levels (BIC " +
+                     Format("%.0f", bic_blend) + " against one transfer function's " +
+                     Format("%.0f)", bic_single)
+               : "one transfer function for all levels (BIC " + Format("%.0f", bic_single) +
+                     " against the T-S blend's " + Format("%.0f)", bic_blend)));
+      result.baseline_model = bic_blend < bic_single ? *blend : *single;
+    } else {
+      result.baseline_model = blend ? *blend : *single;
+    }
     // Read each local model against the physics chain.
     for (const LocalModel& rule : result.baseline_model.rules) {
       const FallBack fall = StepFallBack(rule.tf);
@@ -1051,7 +1113,6 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
         return q;
       };
       data.edges_train = basis(data.train);
-      data.edges_heldout = basis(data.heldout);
     }
   }
   FitProblem reference_problem;
@@ -1201,10 +1262,12 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
       if (report.claimed) claimed.emplace_back(std::move(report), std::move(fit));
     }
     if (claimed.empty()) break;
-    // The verdict of this round: the lowest information criterion.
+    // The verdict of this round: among the claimed candidates (each beat the baseline on
+    // both sets of samples), the lowest information criterion on the training samples.
     size_t best = 0;
+    auto score = [](const CandidateReport& c) { return c.bic; };
     for (size_t i = 1; i < claimed.size(); ++i)
-      if (claimed[i].first.bic < claimed[best].first.bic) best = i;
+      if (score(claimed[i].first) < score(claimed[best].first)) best = i;
     auto& [report, fit] = claimed[best];
     Finding finding;
     finding.effect = report.name;
@@ -1218,7 +1281,19 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
       delta[i] = fit.prediction[i] - current.prediction[i];
       peak = std::max(peak, std::abs(delta[i]));
     }
-    finding.where = Spans(rec, delta, std::max(0.5 * data.noise_mm, 0.3 * peak), 5.0);
+    const double where_threshold = std::max(0.5 * data.noise_mm, 0.3 * peak);
+    if (finding.model.kind == EffectKind::kBackRelaxation ||
+        finding.model.kind == EffectKind::kCreep) {
+      // A relaxation acts during holds: the holds where it departs from the model.
+      for (const Plateau& p : data.levels.plateaus) {
+        if (p.level < 0 || p.end > n) continue;
+        double largest = 0.0;
+        for (size_t k = p.begin; k < p.end; ++k) largest = std::max(largest, std::abs(delta[k]));
+        if (largest >= where_threshold) finding.where.push_back({p.t_start_s, p.t_end_s});
+      }
+    } else {
+      finding.where = Spans(rec, delta, where_threshold, 2.0);
+    }
     finding.explanation = Explain(finding.model, data, delta, finding.heldout_rmse_before_mm,
                                   finding.heldout_rmse_after_mm, model_words);
     // Parameters of earlier findings move slightly in the joint refit.

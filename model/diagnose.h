@@ -9,34 +9,48 @@
 //     identification when there is no trusted model, and every effect's parameters. The
 //     input is known everywhere, so every model is simulated over the whole recording and
 //     scored on the fitted ("training") and the held-out samples separately.
-//  2. Baseline. With a trusted model: that model as given. Without: the seed's structure
-//     (3 zeros, 4 poles, dead time; a T-S blend when the recording holds several voltage
-//     levels) identified on the training samples (identify_ts.h).
+//  2. Baseline. With a trusted model: that model as given (with its file's augmentations).
+//     Without: the seed's structure (3 zeros, 4 poles, dead time) identified on the
+//     training samples, as a T-S blend over the recording's voltage levels and as one
+//     transfer function for all of it; the blend is kept only if it earns its extra
+//     parameters (BIC on the training samples).
 //  3. Locate. The residual r = measured - baseline, broken down by operating condition
 //     (Localisation), with its whiteness and input cross-correlation tests.
 //  4. Candidates. Each effect of the catalogue (EffectKind) that the recording can show
 //     (e.g. polarity_asymmetry needs both polarities) is added to the baseline and only
 //     its parameters are fitted (Levenberg-Marquardt, Ceres, numeric derivatives through
 //     the simulation, several starts for the nonlinear ones) on the training samples.
+//     The recorded voltage is a sampled column: where a step really happened between two
+//     samples is unknown, and its timing error leaves a slow error in any model's
+//     prediction. Every training fit and test is therefore made after projecting out the
+//     baseline's response to moving each recorded step by up to half a sample (one
+//     nuisance regressor per step; none for continuous inputs). Held-out figures are raw.
 //  5. Decide. Residuals of a slightly wrong model are not white, so samples are not
 //     independent evidence: every likelihood figure uses the effective sample count
-//     n_eff = n (1 - rho) / (1 + rho) of the candidate's own training residual (rho its
-//     lag-1 autocorrelation). A candidate is claimed when
-//       - its likelihood ratio n_eff ln(SSE_0 / SSE_1) exceeds the chi-square quantile
-//         for its parameter count at DiagnoseOptions::false_alarm_rate (Bonferroni over
-//         the candidates tried),
-//       - its held-out RMSE is lower than the baseline's (held-out likelihood ratio with
-//         the held-out n_eff above the chi-square(1) quantile at the same rate), and
+//     n_eff = n (1 - rho) / (1 + rho) of the residual (rho its lag-1 autocorrelation). A
+//     candidate is claimed when
+//       - its training likelihood ratio n_eff ln(SSE_0 / SSE_1) exceeds the chi-square
+//         quantile for its parameter count at DiagnoseOptions::false_alarm_rate
+//         (Bonferroni over the candidates tried),
+//       - it predicts the held-out samples better: held-out likelihood ratio above the
+//         chi-square(1) quantile at the same rate, and a lower held-out RMSE, and
 //       - what it adds to the prediction is at least min_effect_to_noise times the noise
 //         over the samples it touches (a statistically real but negligible effect is the
 //         model's own small error, not missing physics).
 //     Among claimed candidates the verdict is the one with the lowest information
-//     criterion BIC = n_eff ln(SSE / n) + k ln(n_eff). One more effect may then be added
-//     on top of it by the same test (forward selection, at most max_effects).
+//     criterion on the training samples, BIC = n_eff ln(SSE / n) + k ln(n_eff). One more
+//     effect may then be added on top of it by the same tests (forward selection, at most
+//     max_effects), the earlier effects refitted with it.
 //  6. Without a trusted model, the identified baseline is also read against the physics
-//     chain (Eqs. 11-13: real poles, a step response that rises without falling back):
-//     a slow mode that makes the step response fall back is back-relaxation the free fit
-//     absorbed, and is reported as such (Absorbed).
+//     chain (Eqs. 11-13: real poles, a step response that rises without falling back): a
+//     step response that rises above its final value and falls back is back-relaxation
+//     the free fit absorbed, reported as a finding (Absorbed).
+//
+// Measured on recordings of an independent simulator (tests/effect_plant.h,
+// tests/diagnose_acceptance_test.cc): with the trusted model, 57 of 60 effects at 0.7-10
+// times the noise named (the misses are below 0.9 times the noise), every clean recording
+// "none", held-out RMSE at least halved (median) where the effect is twice the noise.
+// Without a model the free fit absorbs most effects of that size: 1 of 8 named.
 //
 // Deterministic: no random numbers; the same input gives the same findings.
 #pragma once
