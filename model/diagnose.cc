@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <functional>
 #include <limits>
+#include <memory>
 #include <numeric>
 #include <stdexcept>
 
@@ -240,9 +241,10 @@ std::vector<double> Residual(std::span<const double> y, std::span<const double> 
   return r;
 }
 
-// measured - predicted with the step-timing nuisance projected out (Data::edges_*): what
-// every fit and test works on.
-std::vector<double> ScaledResidual(const struct Data& data, std::span<const double> predicted);
+// measured - predicted, with the step-timing nuisance projected out of the training
+// samples (Data::edges_train): what every fit and training test works on.
+std::vector<double> NuisanceFreeResidual(const struct Data& data,
+                                         std::span<const double> predicted);
 
 double RmsOver(std::span<const double> r, const std::vector<size_t>& index) {
   return index.empty() ? 0.0 : std::sqrt(SumSquares(r, index) / static_cast<double>(index.size()));
@@ -273,7 +275,7 @@ struct Data {
   double dt_s = 0.0;  // median sample period
 };
 
-std::vector<double> ScaledResidual(const Data& data, std::span<const double> predicted) {
+std::vector<double> NuisanceFreeResidual(const Data& data, std::span<const double> predicted) {
   std::vector<double> r = Residual(data.rec->deflection_mm, predicted);
   auto project = [&r](const std::vector<size_t>& index, const Eigen::MatrixXd& q) {
     if (q.cols() == 0) return;
@@ -290,6 +292,10 @@ std::vector<double> ScaledResidual(const Data& data, std::span<const double> pre
 struct Augmented {
   const TsModel* baseline = nullptr;
   std::vector<Effect> effects;
+  // Without a trusted model the baseline is refitted with the effects (its one transfer
+  // function's coefficients); then this is the refitted baseline, used instead.
+  std::shared_ptr<const TsModel> refit;
+  const TsModel& Baseline() const { return refit ? *refit : *baseline; }
 };
 
 // `cache`: the baseline's own prediction, if known (output-side effects then need no
@@ -307,10 +313,10 @@ std::vector<double> Predict(const Data& data, const Augmented& a,
     if (!Info(e.kind).input_side) ApplyOutputEffect(e, rec.t_s, y);
   };
   std::vector<double> y;
-  if (!any_input && cache) {
+  if (!any_input && cache && !a.refit) {
     y = *cache;  // the baseline with the given effects
   } else {
-    y = Simulate(*a.baseline, rec.t_s, u);
+    y = Simulate(a.Baseline(), rec.t_s, u);
     for (const Effect& e : data.given) output_effect(e, &y);
   }
   for (const Effect& e : a.effects) output_effect(e, &y);
@@ -329,8 +335,21 @@ struct ParameterSpec {
 struct FitProblem {
   Augmented fixed;                   // baseline and effects already chosen
   std::vector<EffectKind> kinds;     // effects whose parameters are fitted (appended)
-  std::vector<ParameterSpec> specs;  // for every fitted parameter, effect by effect
+  std::vector<ParameterSpec> specs;  // for every fitted parameter: the baseline's, if
+                                     // refitted, then effect by effect
+  // Refit this single-rule baseline's coefficients too (num, then den after its leading 1),
+  // from their values in it; the result replaces Augmented::refit.
+  std::shared_ptr<const TsModel> refit_from;
 };
+
+// Bounds and starts of a refitted baseline's coefficients: free, from their values.
+std::vector<ParameterSpec> CoefficientSpecs(const TsModel& model) {
+  std::vector<ParameterSpec> specs;
+  const TransferFunction& tf = model.rules.front().tf;
+  for (double c : tf.num) specs.push_back({-kInf, kInf, {c}});
+  for (size_t i = 1; i < tf.den.size(); ++i) specs.push_back({-kInf, kInf, {tf.den[i]}});
+  return specs;
+}
 
 struct FitResult {
   Augmented model;
@@ -343,6 +362,13 @@ struct FitResult {
 Augmented Assemble(const FitProblem& p, const double* theta) {
   Augmented a = p.fixed;
   size_t i = 0;
+  if (p.refit_from) {
+    auto model = std::make_shared<TsModel>(*p.refit_from);
+    TransferFunction& tf = model->rules.front().tf;
+    for (double& c : tf.num) c = theta[i++];
+    for (size_t j = 1; j < tf.den.size(); ++j) tf.den[j] = theta[i++];
+    a.refit = std::move(model);
+  }
   for (EffectKind kind : p.kinds) {
     Effect e{kind, {}};
     for (size_t j = 0; j < Info(kind).params.size(); ++j) e.params.push_back(theta[i++]);
@@ -357,7 +383,7 @@ class EffectCost {
       : data_(data), problem_(problem), baseline_(baseline) {}
   bool operator()(double const* const* parameters, double* residuals) const {
     const std::vector<double> y = Predict(data_, Assemble(problem_, parameters[0]), baseline_);
-    const std::vector<double> projected = ScaledResidual(data_, y);
+    const std::vector<double> projected = NuisanceFreeResidual(data_, y);
     for (size_t i = 0; i < data_.train.size(); ++i) {
       const double r = projected[data_.train[i]];
       residuals[i] = std::isfinite(r) ? r : 1e6;
@@ -379,7 +405,7 @@ FitResult FitParameters(const Data& data, const FitProblem& problem,
   if (q == 0) {
     best.model = problem.fixed;
     best.prediction = Predict(data, best.model, baseline);
-    best.train_sse = SumSquares(ScaledResidual(data, best.prediction), data.train);
+    best.train_sse = SumSquares(NuisanceFreeResidual(data, best.prediction), data.train);
     return best;
   }
   // Levenberg-Marquardt from theta (in place) for at most `iterations`; returns the SSE and,
@@ -453,12 +479,23 @@ FitResult FitParameters(const Data& data, const FitProblem& problem,
       }
     }
   }
-  solve(&theta, 40, &best.half_width);
+  solve(&theta, problem.refit_from ? 15 : 40, &best.half_width);
   best.theta = theta;
   best.model = Assemble(problem, best.theta.data());
   best.prediction = Predict(data, best.model, baseline);
-  best.train_sse = SumSquares(ScaledResidual(data, best.prediction), data.train);
+  best.train_sse = SumSquares(NuisanceFreeResidual(data, best.prediction), data.train);
   return best;
+}
+
+// The fitted model's prediction minus the same model without its last effect (the
+// baseline as refitted with it, the earlier effects kept).
+std::vector<double> WhatTheLastEffectAdds(const Data& data, const FitResult& fit) {
+  Augmented without = fit.model;
+  without.effects.pop_back();
+  const std::vector<double> y = Predict(data, without);
+  std::vector<double> delta(y.size());
+  for (size_t k = 0; k < y.size(); ++k) delta[k] = fit.prediction[k] - y[k];
+  return delta;
 }
 
 // Bounds and starting values of one effect's parameters for this recording.
@@ -501,8 +538,14 @@ std::vector<ParameterSpec> SpecsFor(EffectKind kind, const Data& data) {
       if (onsets.empty()) onsets.push_back(0.5 * top);
       return {{0.5 * low, top, onsets}, {0.0, 1.0, {0.5}}};
     }
-    case EffectKind::kDeadZone:
-      return {{0.0, 0.9 * std::max(low, 1e-9), {0.1 * low, 0.4 * low}}};
+    case EffectKind::kDeadZone: {
+      // The threshold may lie above the lowest levels (they then move nothing): starts
+      // below the lowest level and between the lowest few.
+      std::vector<double> starts = {0.1 * low, 0.5 * low};
+      for (size_t i = 0; i + 1 < data.abs_levels_V.size() && i < 3; ++i)
+        starts.push_back(0.5 * (data.abs_levels_V[i] + data.abs_levels_V[i + 1]));
+      return {{0.0, 0.9 * std::max(top, 1e-9), starts}};
+    }
     case EffectKind::kSensorDrift:
       return {{-kInf, kInf, {0.0}}, {-kInf, kInf, {0.0}}, {tau_lo, 5.0 * D, {0.1 * D, 0.5 * D}}};
     case EffectKind::kPolarityAsymmetry:
@@ -865,7 +908,7 @@ std::vector<double> SimulateAugmented(const TsModel& baseline, const Recording& 
                                   std::to_string(Info(e.kind).params.size()) + " parameters");
   Data data;
   data.rec = &recording;
-  return Predict(data, Augmented{&baseline, effects});
+  return Predict(data, Augmented{&baseline, effects, nullptr});
 }
 
 // -----------------------------------------------------------------------------------------
@@ -1080,7 +1123,7 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
                                     ": wrong parameter count");
     data.given = options.baseline_effects;
   }
-  result.baseline_mm = Predict(data, Augmented{&baseline, {}});
+  result.baseline_mm = Predict(data, Augmented{&baseline, {}, nullptr});
   for (double y : result.baseline_mm)
     if (!std::isfinite(y))
       throw InputError(rec.source + ": the baseline model's prediction is not finite");
@@ -1116,7 +1159,7 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
     }
   }
   FitProblem reference_problem;
-  reference_problem.fixed = Augmented{&baseline, {}};
+  reference_problem.fixed = Augmented{&baseline, {}, nullptr};
   const FitResult reference = FitParameters(data, reference_problem, &result.baseline_mm);
 
   const std::vector<double> r0 = Residual(rec.deflection_mm, result.baseline_mm);
@@ -1156,12 +1199,13 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
   const double n_train = static_cast<double>(data.train.size());
 
   FitResult current = reference;
+  const bool refit_baseline = !trusted_model && baseline.rules.size() == 1;
   std::vector<EffectKind> chosen;
   std::vector<CandidateReport> round_reports;
   for (int round = 0; round < options.max_effects; ++round) {
     const std::vector<double> current_r = Residual(rec.deflection_mm, current.prediction);
     const double sse0 = current.train_sse;
-    const std::vector<double> current_w = ScaledResidual(data, current.prediction);
+    const std::vector<double> current_w = NuisanceFreeResidual(data, current.prediction);
     const double sse0_h = SumSquares(current_w, data.heldout);
     std::vector<std::pair<CandidateReport, FitResult>> claimed;
     for (EffectKind kind : kinds) {
@@ -1183,6 +1227,15 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
       for (EffectKind variant : variants) {
         FitProblem problem;
         problem.fixed = current.model;
+        // Without a trusted model, the identified baseline is refitted with the effects:
+        // a free fit may have bent itself towards the effect, and the effect is only
+        // tested fairly against the best baseline that has it.
+        problem.fixed.refit = nullptr;
+        if (refit_baseline) {
+          problem.refit_from =
+              current.model.refit ? current.model.refit : std::make_shared<const TsModel>(baseline);
+          problem.specs = CoefficientSpecs(*problem.refit_from);
+        }
         // Effects chosen so far are refitted together with the new one.
         problem.fixed.effects.clear();
         for (const Effect& e : current.model.effects) {
@@ -1194,6 +1247,34 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
         problem.kinds.push_back(variant);
         const std::vector<ParameterSpec> specs = SpecsFor(variant, data);
         problem.specs.insert(problem.specs.end(), specs.begin(), specs.end());
+        if (problem.refit_from) {
+          // The effects' starting values from a fit with the baseline held (cheap: one
+          // simulation per evaluation at most), then everything together from there.
+          FitProblem held = problem;
+          held.refit_from = nullptr;
+          held.fixed.refit = current.model.refit;
+          held.specs.erase(
+              held.specs.begin(),
+              held.specs.begin() + static_cast<long>(CoefficientSpecs(baseline).size()));
+          FitResult start =
+              FitParameters(data, held, current.model.refit ? nullptr : &result.baseline_mm);
+          // The joint refit costs a simulation per coefficient and iteration: it is spent
+          // only where the effect shows at all with the baseline held.
+          const double shows =
+              EffectiveSamples(NuisanceFreeResidual(data, start.prediction), data.train) *
+              std::log(sse0 / std::max(start.train_sse, 1e-300));
+          const int k_new = static_cast<int>(Info(variant).params.size());
+          if (shows < 0.25 * ChiSquareQuantile(level, k_new)) {
+            if (start.train_sse < fit.train_sse) {
+              fit = std::move(start);
+              fitted_kind = variant;
+            }
+            continue;
+          }
+          const size_t coefficients = CoefficientSpecs(baseline).size();
+          for (size_t j = 0; j < start.theta.size(); ++j)
+            problem.specs[coefficients + j].starts = {start.theta[j]};
+        }
         FitResult f = FitParameters(data, problem, &result.baseline_mm);
         if (f.train_sse < fit.train_sse) {
           fit = std::move(f);
@@ -1211,7 +1292,7 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
                                  fit.half_width.empty() ? kInf : fit.half_width[offset + j]});
       report.train_rmse_mm = std::sqrt(fit.train_sse / n_train);
       report.heldout_rmse_mm = RmsOver(r1, data.heldout);
-      const std::vector<double> w1 = ScaledResidual(data, fit.prediction);
+      const std::vector<double> w1 = NuisanceFreeResidual(data, fit.prediction);
       report.effective_samples = EffectiveSamples(w1, data.train);
       const int k = static_cast<int>(added.params.size());
       report.likelihood_ratio =
@@ -1222,12 +1303,9 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
       report.bic = report.effective_samples * std::log(fit.train_sse / n_train) +
                    static_cast<double>(fit.theta.size()) * std::log(report.effective_samples);
       // What it adds, over the samples it touches.
-      std::vector<double> delta(n);
+      const std::vector<double> delta = WhatTheLastEffectAdds(data, fit);
       double peak = 0.0;
-      for (size_t i = 0; i < n; ++i) {
-        delta[i] = fit.prediction[i] - current.prediction[i];
-        peak = std::max(peak, std::abs(delta[i]));
-      }
+      for (double d : delta) peak = std::max(peak, std::abs(d));
       double sum = 0.0;
       size_t touched = 0;
       for (double d : delta)
@@ -1275,12 +1353,9 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
     finding.heldout_rmse_before_mm = RmsOver(current_r, data.heldout);
     finding.heldout_rmse_after_mm = report.heldout_rmse_mm;
     finding.model = fit.model.effects.back();
-    std::vector<double> delta(n);
+    const std::vector<double> delta = WhatTheLastEffectAdds(data, fit);
     double peak = 0.0;
-    for (size_t i = 0; i < n; ++i) {
-      delta[i] = fit.prediction[i] - current.prediction[i];
-      peak = std::max(peak, std::abs(delta[i]));
-    }
+    for (double d : delta) peak = std::max(peak, std::abs(d));
     const double where_threshold = std::max(0.5 * data.noise_mm, 0.3 * peak);
     if (finding.model.kind == EffectKind::kBackRelaxation ||
         finding.model.kind == EffectKind::kCreep) {
@@ -1324,6 +1399,7 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
   }
   result.verdict = result.findings.empty() ? "none" : result.findings.front().effect;
   result.augmented_mm = result.findings.empty() ? result.baseline_mm : current.prediction;
+  result.augmented_baseline_model = current.model.refit ? *current.model.refit : baseline;
   return result;
 }
 

@@ -108,7 +108,7 @@ TEST_F(Cli, BadInputExitsTwoWithOneLineNamingTheProblem) {
 }
 
 TEST_F(Cli, HelpOnEveryCommandHasAnExample) {
-  for (const char* command : {"tf show", "simulate", "physics", "identify"}) {
+  for (const char* command : {"tf show", "simulate", "physics", "identify", "diagnose"}) {
     const auto r = Run(std::string(command) + " --help");
     EXPECT_EQ(r.exit_code, 0) << command;
     EXPECT_NE(r.out.find("Example"), std::string::npos) << command << "\n" << r.out;
@@ -244,6 +244,55 @@ TEST_F(Cli, PhysicsTable1RejectsOptionsThatDoNotApply) {
     EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
     EXPECT_TRUE(r.out.empty()) << r.out;
   }
+}
+
+}  // namespace
+}  // namespace flexid
+
+namespace flexid {
+namespace {
+
+// flexid diagnose on a shipped concealed recording: the DESIGN.md JSON, the report, the
+// augmented model file, and simulate applying the augmentation.
+TEST_F(Cli, DiagnoseGivesTheContractJsonReportAndAugmentedModel) {
+  const std::string rec = kExamples + "/concealed/rec-06.csv";
+  const auto report = scratch_.path() / "report.html";
+  const auto augmented = scratch_.path() / "augmented.json";
+  auto r = Run("diagnose " + rec + " --model " + kExamples + "/seed-8V.json --json --report " +
+               report.string() + " --out " + augmented.string());
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  for (const char* key : {"verdict", "baseline", "findings"}) EXPECT_TRUE(j.contains(key)) << key;
+  for (const char* key : {"fit_percent", "rmse_mm", "heldout_rmse_mm"})
+    EXPECT_TRUE(j["baseline"][key].is_number()) << key;
+  ASSERT_FALSE(j["findings"].empty());
+  const auto& f = j["findings"][0];
+  EXPECT_EQ(f["effect"], j["verdict"]);
+  for (const char* key :
+       {"explanation", "where", "params", "heldout_rmse_before_mm", "heldout_rmse_after_mm"})
+    EXPECT_TRUE(f.contains(key)) << key;
+  EXPECT_LT(f["heldout_rmse_after_mm"].get<double>(), f["heldout_rmse_before_mm"].get<double>());
+  ASSERT_TRUE(std::filesystem::exists(report));
+  // The augmented model predicts the recording better than the model alone.
+  auto fit_of = [&](const std::string& model) {
+    const auto s = Run("simulate --model " + model + " " + rec + " --out " +
+                       (scratch_.path() / "pred.csv").string());
+    EXPECT_EQ(s.exit_code, 0) << s.err;
+    const size_t at = s.out.find("RMSE ");
+    return std::stod(s.out.substr(at + 5));
+  };
+  EXPECT_LT(fit_of(augmented.string()), fit_of(kExamples + "/seed-8V.json"));
+
+  // An augmentation flexid does not know is bad input, named.
+  WriteFile(scratch_.path() / "odd.json",
+            R"({"format": "flexid.model/1", "kind": "tf", "num": [1], "den": [1, 1],
+                "augmentations": [{"effect": "gremlins"}]})");
+  r = Run("diagnose " + rec + " --model " + (scratch_.path() / "odd.json").string());
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("gremlins"), std::string::npos) << r.err;
+  r = Run("diagnose " + (scratch_.path() / "missing.csv").string());
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("missing.csv"), std::string::npos) << r.err;
 }
 
 }  // namespace

@@ -137,8 +137,13 @@ void RunDiagnose(const DiagnoseArgs& args) {
     if (doc) {
       out = *doc;
     } else {
-      out.kind = model::ModelDocument::Kind::kTsFuzzy;
-      out.ts = d.baseline_model;
+      const model::TsModel& m = d.augmented_baseline_model;
+      if (m.rules.size() == 1) {
+        out = model::FromTransferFunction(m.rules.front().tf);
+      } else {
+        out.kind = model::ModelDocument::Kind::kTsFuzzy;
+        out.ts = m;
+      }
     }
     for (const model::Finding& f : d.findings)
       if (f.heldout_rmse_after_mm < f.heldout_rmse_before_mm)

@@ -7,6 +7,7 @@
 
 #include "clients/cli/command.h"
 #include "clients/cli/format.h"
+#include "model/diagnose.h"
 #include "model/errors.h"
 #include "model/metrics.h"
 #include "model/model_file.h"
@@ -28,8 +29,23 @@ void RunSimulate(const SimulateArgs& args) {
   const model::ModelDocument doc = model::ReadModelFile(args.model_path);
   const model::Recording rec =
       model::ReadRecordingCsv(args.recording_path, {.require_deflection = false});
-  const std::vector<double> predicted_mm = model::Simulate(
-      model::AsTsModel(doc), rec.t_s, rec.voltage_V, {.start_in_steady_state = args.steady_start});
+  // A model file's augmentations (effects added by `flexid diagnose --out`) are part of the
+  // model: they are applied on top of it.
+  std::vector<model::Effect> effects;
+  for (const model::Augmentation& a : doc.augmentations) {
+    try {
+      effects.push_back(model::EffectFromAugmentation(a));
+    } catch (const model::InputError& e) {
+      throw model::InputError(args.model_path + ": " + e.what());
+    }
+  }
+  if (!effects.empty() && args.steady_start)
+    throw UsageError("--steady-start: " + args.model_path +
+                     " has augmentations, which are simulated from rest only");
+  const std::vector<double> predicted_mm =
+      effects.empty() ? model::Simulate(model::AsTsModel(doc), rec.t_s, rec.voltage_V,
+                                        {.start_in_steady_state = args.steady_start})
+                      : model::SimulateAugmented(model::AsTsModel(doc), rec, effects);
   for (size_t k = 0; k < predicted_mm.size(); ++k)
     if (!std::isfinite(predicted_mm[k]))
       throw OperationError(args.model_path + ": the prediction diverges at t = " +
