@@ -1184,7 +1184,20 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
   for (EffectKind kind : AllEffects()) {
     if (kind == EffectKind::kCreep) continue;  // fitted together with back-relaxation
     std::string reason;
-    if (Applicable(kind, data, &reason)) {
+    const bool linear_relaxation = kind == EffectKind::kBackRelaxation;
+    if (!trusted_model && baseline.rules.size() == 1 && linear_relaxation) {
+      // A slow linear relaxation is a pole-zero pair: the identified transfer function
+      // spans it already, so testing it on top of a refit would test model order, not
+      // physics. The physics reading of the fit (Absorbed) is what can name it.
+      reason =
+          "a slow linear relaxation is within what the identified transfer function "
+          "spans (see what the fit absorbed)";
+      CandidateReport report;
+      report.kind = kind;
+      report.name = EffectName(kind);
+      report.reason = "not tried: " + reason;
+      result.candidates.push_back(std::move(report));
+    } else if (Applicable(kind, data, &reason)) {
       kinds.push_back(kind);
     } else {
       CandidateReport report;
@@ -1316,10 +1329,11 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
       report.effect_rms_mm = touched ? std::sqrt(sum / static_cast<double>(touched)) : 0.0;
       const double lr_threshold = ChiSquareQuantile(level, k);
       const double heldout_threshold = ChiSquareQuantile(level, 1);
-      if (!(report.likelihood_ratio > lr_threshold)) {
-        report.reason =
-            Format("training evidence too weak (likelihood ratio %.1f", report.likelihood_ratio) +
-            Format(" <= %.1f)", lr_threshold);
+      const double evidence =
+          report.likelihood_ratio + std::max(report.heldout_likelihood_ratio, 0.0);
+      if (!(evidence > lr_threshold)) {
+        report.reason = Format("evidence too weak (training plus held-out likelihood ratio %.1f", evidence) +
+                        Format(" <= %.1f)", lr_threshold);
       } else if (!(report.heldout_likelihood_ratio > heldout_threshold)) {
         report.reason =
             Format("does not predict the held-out samples better (likelihood ratio %.1f",
