@@ -525,7 +525,8 @@ std::vector<ParameterSpec> SpecsFor(EffectKind kind, const Data& data) {
       return {{0.0, kind == EffectKind::kBackRelaxation ? 0.95 : 2.0, {0.03, 0.2}},
               {tau_lo, tau_hi, taus()}};
     case EffectKind::kCycleDegradation:
-      return {{-1.0, 0.95, {-0.05, 0.05}}};
+      // Degradation only: a gain that grows with use is not this effect.
+      return {{0.0, 0.95, {0.01, 0.1}}};
     case EffectKind::kHysteresis:
       return {{0.0, 0.5 * range_mm + 1e-9, {std::max(2.0 * data.noise_mm, 1e-6)}},
               {1e-3 * range_mm + 1e-9,
@@ -815,10 +816,9 @@ std::string Explain(const Effect& e, const Data& data, std::span<const double> d
     case EffectKind::kCycleDegradation:
       text = Format(
                  "the response shrinks as charge is transferred: by the end of the recording the "
-                 "gain is %.1f %% ",
-                 100.0 * std::abs(e.params[0])) +
-             (e.params[0] >= 0 ? "lower" : "higher") + " than at its start (up to " + Mm(peak) +
-             " at the last cycles): cycle degradation";
+                 "gain is %.1f %% lower than at its start",
+                 100.0 * e.params[0]) +
+             " (up to " + Mm(peak) + " at the last cycles): cycle degradation";
       break;
     case EffectKind::kHysteresis:
       text = "whenever the motion reverses, the measured deflection lags " + model_words +
@@ -849,6 +849,117 @@ std::string Explain(const Effect& e, const Data& data, std::span<const double> d
   text += ", which " + model_words + " leaves out; adding it cut held-out RMSE from " +
           Format("%.3g", before_mm) + " to " + Format("%.3g mm", after_mm);
   return text;
+}
+
+// Without a trusted model: the seed's structure identified on the training samples (the
+// T-S blend over the levels, or one transfer function when the blend does not earn its
+// parameters). Notes go to result->notes.
+TsModel IdentifyBaseline(const Recording& rec, const Data& data, Diagnosis* result) {
+  const size_t n = rec.t_s.size();
+  // The held-out deflection never reaches the identification: the samples there are
+  // replaced by a straight line between their training neighbours (they enter only the
+  // linear starting estimate's regressors, identify_ts.h) and are excluded from the fit.
+  Recording training = rec;
+  for (const TimeSpan& s : result->heldout) {
+    size_t a = 0;
+    while (a < n && rec.t_s[a] < s.t_start_s) ++a;
+    size_t b = a;
+    while (b < n && rec.t_s[b] <= s.t_end_s) ++b;
+    const double left = a > 0 ? rec.deflection_mm[a - 1] : (b < n ? rec.deflection_mm[b] : 0.0);
+    const double right = b < n ? rec.deflection_mm[b] : left;
+    for (size_t k = a; k < b; ++k) {
+      const double w = static_cast<double>(k - a + 1) / static_cast<double>(b - a + 1);
+      training.deflection_mm[k] = (1 - w) * left + w * right;
+    }
+  }
+  TsIdentifyOptions identify;
+  for (const TimeSpan& s : result->heldout)
+    identify.excluded_spans_s.emplace_back(s.t_start_s, s.t_end_s + 0.5 * data.dt_s);
+  // Two candidate baselines: the T-S blend over the recording's levels, and one transfer
+  // function for all of it (segments from the start, fitted on each training run). The
+  // blend is kept only if it earns its extra parameters on the training samples (BIC with
+  // the effective sample count); a linear actuator's staircase gives one step per level,
+  // too little to fit a local model each.
+  std::optional<TsModel> blend;
+  std::string blend_error;
+  try {
+    const TsEstimate estimate = IdentifyTsModel({training}, identify);
+    blend = estimate.model;
+    for (const std::string& note : estimate.notes) result->notes.push_back(note);
+  } catch (const std::exception& e) {
+    blend_error = e.what();
+  }
+  std::optional<TsModel> single;
+  double dt_uniform = 0.0;
+  if ((!blend || blend->rules.size() > 1) && IsUniformGrid(rec.t_s, &dt_uniform)) {
+    std::vector<DataSegment> segments;
+    for (size_t i = 0; i < data.train.size();) {
+      size_t j = i;
+      while (j + 1 < data.train.size() && data.train[j + 1] == data.train[j] + 1) ++j;
+      DataSegment seg;
+      seg.dt_s = dt_uniform;
+      const size_t end = data.train[j] + 1;
+      seg.voltage_V.assign(rec.voltage_V.begin(), rec.voltage_V.begin() + static_cast<long>(end));
+      seg.deflection_mm.assign(training.deflection_mm.begin(),
+                               training.deflection_mm.begin() + static_cast<long>(end));
+      seg.fit_begin = data.train[i];
+      segments.push_back(std::move(seg));
+      i = j + 1;
+    }
+    try {
+      single = SingleRule(IdentifyTransferFunction(segments).tf);
+    } catch (const std::exception& e) {
+      if (!blend) throw;
+    }
+  }
+  if (!blend && !single) throw InputError(rec.source + ": " + blend_error);
+  auto bic = [&](const TsModel& m) {
+    const std::vector<double> r = Residual(rec.deflection_mm, Simulate(m, rec.t_s, rec.voltage_V));
+    const double sse = SumSquares(r, data.train), n_eff = EffectiveSamples(r, data.train);
+    const double p =
+        static_cast<double>(m.rules.size() * (m.rules[0].tf.num.size() + m.rules[0].tf.den.size()));
+    return n_eff * std::log(sse / static_cast<double>(data.train.size())) + p * std::log(n_eff);
+  };
+  if (blend && single) {
+    const double bic_blend = bic(*blend), bic_single = bic(*single);
+    result->notes.push_back(
+        std::string("baseline: ") +
+        (bic_blend < bic_single
+             ? "the T-S blend of " + std::to_string(blend->rules.size()) + " levels (BIC " +
+                   Format("%.0f", bic_blend) + " against one transfer function's " +
+                   Format("%.0f)", bic_single)
+             : "one transfer function for all levels (BIC " + Format("%.0f", bic_single) +
+                   " against the T-S blend's " + Format("%.0f)", bic_blend)));
+    return bic_blend < bic_single ? *blend : *single;
+  } else {
+    return blend ? *blend : *single;
+  }
+}
+
+// The identified model read against the physics chain (Eqs. 11-13): a step response that
+// rises above its final value and falls back is back-relaxation the free fit absorbed.
+std::vector<Absorbed> ReadAgainstPhysics(const TsModel& model, double noise_mm) {
+  std::vector<Absorbed> found;
+  // Read each local model against the physics chain.
+  for (const LocalModel& rule : model.rules) {
+    const FallBack fall = StepFallBack(rule.tf);
+    const double amplitude_mm = fall.share * std::abs(DcGain(rule.tf) * rule.level_V);
+    if (fall.share < 0.01 || amplitude_mm < 2.0 * noise_mm) continue;
+    Absorbed absorbed;
+    absorbed.effect = "back_relaxation";
+    absorbed.level_V = rule.level_V;
+    absorbed.tau_s = fall.tau_s;
+    absorbed.fall_back = fall.share;
+    absorbed.amplitude_mm = amplitude_mm;
+    absorbed.explanation =
+        Format("the model identified at %.3g V rises ", rule.level_V) + Mm(amplitude_mm) +
+        Format(" (%.1f %%) above its final value", 100.0 * fall.share) +
+        Format(" and falls back with a %.0f s time constant", fall.tau_s) +
+        ", while the physics chain (Eqs. 11-13) predicts a rise without falling back: the "
+        "free fit absorbed back-relaxation as a slow pole-zero pair";
+    found.push_back(absorbed);
+  }
+  return found;
 }
 
 }  // namespace
@@ -1016,104 +1127,8 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
   if (trusted_model) {
     result.baseline_model = *trusted_model;
   } else {
-    // The held-out deflection never reaches the identification: the samples there are
-    // replaced by a straight line between their training neighbours (they enter only the
-    // linear starting estimate's regressors, identify_ts.h) and are excluded from the fit.
-    Recording training = rec;
-    for (const TimeSpan& s : result.heldout) {
-      size_t a = 0;
-      while (a < n && rec.t_s[a] < s.t_start_s) ++a;
-      size_t b = a;
-      while (b < n && rec.t_s[b] <= s.t_end_s) ++b;
-      const double left = a > 0 ? rec.deflection_mm[a - 1] : (b < n ? rec.deflection_mm[b] : 0.0);
-      const double right = b < n ? rec.deflection_mm[b] : left;
-      for (size_t k = a; k < b; ++k) {
-        const double w = static_cast<double>(k - a + 1) / static_cast<double>(b - a + 1);
-        training.deflection_mm[k] = (1 - w) * left + w * right;
-      }
-    }
-    TsIdentifyOptions identify;
-    for (const TimeSpan& s : result.heldout)
-      identify.excluded_spans_s.emplace_back(s.t_start_s, s.t_end_s + 0.5 * data.dt_s);
-    // Two candidate baselines: the T-S blend over the recording's levels, and one transfer
-    // function for all of it (segments from the start, fitted on each training run). The
-    // blend is kept only if it earns its extra parameters on the training samples (BIC with
-    // the effective sample count); a linear actuator's staircase gives one step per level,
-    // too little to fit a local model each.
-    std::optional<TsModel> blend;
-    std::string blend_error;
-    try {
-      const TsEstimate estimate = IdentifyTsModel({training}, identify);
-      blend = estimate.model;
-      for (const std::string& note : estimate.notes) result.notes.push_back(note);
-    } catch (const std::exception& e) {
-      blend_error = e.what();
-    }
-    std::optional<TsModel> single;
-    double dt_uniform = 0.0;
-    if ((!blend || blend->rules.size() > 1) && IsUniformGrid(rec.t_s, &dt_uniform)) {
-      std::vector<DataSegment> segments;
-      for (size_t i = 0; i < data.train.size();) {
-        size_t j = i;
-        while (j + 1 < data.train.size() && data.train[j + 1] == data.train[j] + 1) ++j;
-        DataSegment seg;
-        seg.dt_s = dt_uniform;
-        const size_t end = data.train[j] + 1;
-        seg.voltage_V.assign(rec.voltage_V.begin(), rec.voltage_V.begin() + static_cast<long>(end));
-        seg.deflection_mm.assign(training.deflection_mm.begin(),
-                                 training.deflection_mm.begin() + static_cast<long>(end));
-        seg.fit_begin = data.train[i];
-        segments.push_back(std::move(seg));
-        i = j + 1;
-      }
-      try {
-        single = SingleRule(IdentifyTransferFunction(segments).tf);
-      } catch (const std::exception& e) {
-        if (!blend) throw;
-      }
-    }
-    if (!blend && !single) throw InputError(rec.source + ": " + blend_error);
-    auto bic = [&](const TsModel& m) {
-      const std::vector<double> r =
-          Residual(rec.deflection_mm, Simulate(m, rec.t_s, rec.voltage_V));
-      const double sse = SumSquares(r, data.train), n_eff = EffectiveSamples(r, data.train);
-      const double p = static_cast<double>(m.rules.size() *
-                                           (m.rules[0].tf.num.size() + m.rules[0].tf.den.size()));
-      return n_eff * std::log(sse / static_cast<double>(data.train.size())) + p * std::log(n_eff);
-    };
-    if (blend && single) {
-      const double bic_blend = bic(*blend), bic_single = bic(*single);
-      result.notes.push_back(
-          std::string("baseline: ") +
-          (bic_blend < bic_single
-               ? "the T-S blend of " + std::to_string(blend->rules.size()) + " levels (BIC " +
-                     Format("%.0f", bic_blend) + " against one transfer function's " +
-                     Format("%.0f)", bic_single)
-               : "one transfer function for all levels (BIC " + Format("%.0f", bic_single) +
-                     " against the T-S blend's " + Format("%.0f)", bic_blend)));
-      result.baseline_model = bic_blend < bic_single ? *blend : *single;
-    } else {
-      result.baseline_model = blend ? *blend : *single;
-    }
-    // Read each local model against the physics chain.
-    for (const LocalModel& rule : result.baseline_model.rules) {
-      const FallBack fall = StepFallBack(rule.tf);
-      const double amplitude_mm = fall.share * std::abs(DcGain(rule.tf) * rule.level_V);
-      if (fall.share < 0.01 || amplitude_mm < 2.0 * data.noise_mm) continue;
-      Absorbed absorbed;
-      absorbed.effect = "back_relaxation";
-      absorbed.level_V = rule.level_V;
-      absorbed.tau_s = fall.tau_s;
-      absorbed.fall_back = fall.share;
-      absorbed.amplitude_mm = amplitude_mm;
-      absorbed.explanation =
-          Format("the model identified at %.3g V rises ", rule.level_V) + Mm(amplitude_mm) +
-          Format(" (%.1f %%) above its final value", 100.0 * fall.share) +
-          Format(" and falls back with a %.0f s time constant", fall.tau_s) +
-          ", while the physics chain (Eqs. 11-13) predicts a rise without falling back: the "
-          "free fit absorbed back-relaxation as a slow pole-zero pair";
-      result.absorbed.push_back(absorbed);
-    }
+    result.baseline_model = IdentifyBaseline(rec, data, &result);
+    result.absorbed = ReadAgainstPhysics(result.baseline_model, data.noise_mm);
   }
   const TsModel& baseline = result.baseline_model;
   if (trusted_model) {
@@ -1332,8 +1347,9 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
       const double evidence =
           report.likelihood_ratio + std::max(report.heldout_likelihood_ratio, 0.0);
       if (!(evidence > lr_threshold)) {
-        report.reason = Format("evidence too weak (training plus held-out likelihood ratio %.1f", evidence) +
-                        Format(" <= %.1f)", lr_threshold);
+        report.reason =
+            Format("evidence too weak (training plus held-out likelihood ratio %.1f", evidence) +
+            Format(" <= %.1f)", lr_threshold);
       } else if (!(report.heldout_likelihood_ratio > heldout_threshold)) {
         report.reason =
             Format("does not predict the held-out samples better (likelihood ratio %.1f",
