@@ -17,6 +17,7 @@ int main(int argc, char** argv) {
   flexid::cli::RegisterPhysicsCommand(app);
   flexid::cli::RegisterIdentifyCommand(app);
   flexid::cli::RegisterDiagnoseCommand(app);
+  flexid::cli::RegisterPlotCommand(app);
   flexid::cli::RegisterBusCommands(app);
   app.add_option("--lcm", flexid::cli::LcmUrl(),
                  "LCM URL of the flexidd bus (default udpm://239.255.76.67:7667?ttl=0)");

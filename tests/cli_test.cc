@@ -2,6 +2,8 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <fstream>
+#include <iterator>
 #include <nlohmann/json.hpp>
 
 #include "cli_process.h"
@@ -108,7 +110,8 @@ TEST_F(Cli, BadInputExitsTwoWithOneLineNamingTheProblem) {
 }
 
 TEST_F(Cli, HelpOnEveryCommandHasAnExample) {
-  for (const char* command : {"tf show", "simulate", "physics", "identify", "diagnose"}) {
+  for (const char* command : {"tf show", "simulate", "physics", "identify", "diagnose", "plot fit",
+                              "plot residual", "plot bode", "plot memberships"}) {
     const auto r = Run(std::string(command) + " --help");
     EXPECT_EQ(r.exit_code, 0) << command;
     EXPECT_NE(r.out.find("Example"), std::string::npos) << command << "\n" << r.out;
@@ -293,6 +296,50 @@ TEST_F(Cli, DiagnoseGivesTheContractJsonReportAndAugmentedModel) {
   r = Run("diagnose " + (scratch_.path() / "missing.csv").string());
   EXPECT_EQ(r.exit_code, 2);
   EXPECT_NE(r.err.find("missing.csv"), std::string::npos) << r.err;
+}
+
+}  // namespace
+}  // namespace flexid
+
+namespace flexid {
+namespace {
+
+TEST_F(Cli, PlotWritesSvgChartsAndRefusesWhatItCannotDo) {
+  const std::string rec = kExamples + "/concealed/rec-02.csv";
+  auto svg_of = [&](const std::string& args, const std::string& file) {
+    const auto r = Run("plot " + args + " --out " + (scratch_.path() / file).string());
+    EXPECT_EQ(r.exit_code, 0) << args << ": " << r.err;
+    std::ifstream in(scratch_.path() / file);
+    return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  };
+  auto count = [](const std::string& text, const std::string& what) {
+    size_t n = 0;
+    for (size_t at = text.find(what); at != std::string::npos; at = text.find(what, at + 1)) ++n;
+    return n;
+  };
+  // fit: two charts (deflection with measured and predicted, voltage); residual: one.
+  const std::string fit = svg_of("fit --model " + kExamples + "/seed-8V.json " + rec, "fit.svg");
+  EXPECT_EQ(fit.rfind("<svg", 0), 0u);
+  EXPECT_EQ(count(fit, "<svg"), 3u);
+  EXPECT_NE(fit.find("predicted"), std::string::npos);
+  EXPECT_EQ(
+      count(svg_of("residual --model " + kExamples + "/seed-8V.json " + rec, "r.svg"), "<svg"), 2u);
+  // bode of the two-rule T-S model: one magnitude and one phase series per rule.
+  const std::string bode = svg_of("bode --model " + kExamples + "/seed-ts.json", "bode.svg");
+  EXPECT_EQ(count(bode, "<svg"), 3u);
+  EXPECT_GE(count(bode, "<path"), 4u);
+  const std::string mem =
+      svg_of("memberships --model " + kExamples + "/seed-ts.json", "memberships.svg");
+  EXPECT_NE(mem.find("8 V"), std::string::npos);
+
+  auto r = Run("plot fit --model " + kExamples + "/seed-8V.json " + rec + " --out x.png");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("SVG"), std::string::npos) << r.err;
+  r = Run("plot bode --model " + kExamples + "/seed-8V.json " + rec + " --out x.svg");
+  EXPECT_EQ(r.exit_code, 2);
+  r = Run("plot bode --model " + (scratch_.path() / "missing.json").string() + " --out x.svg");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("missing.json"), std::string::npos) << r.err;
 }
 
 }  // namespace

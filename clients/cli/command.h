@@ -25,6 +25,7 @@ void RegisterSimulateCommand(CLI::App& app);
 void RegisterPhysicsCommand(CLI::App& app);
 void RegisterIdentifyCommand(CLI::App& app);
 void RegisterDiagnoseCommand(CLI::App& app);
+void RegisterPlotCommand(CLI::App& app);
 void RegisterBusCommands(CLI::App& app);
 
 }  // namespace flexid::cli
