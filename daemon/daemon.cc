@@ -480,19 +480,23 @@ struct Daemon::Impl {
     const nlohmann::json& d = result.diagnosis;
     auto it = actuators.find(result.actuator_id);
     const std::string verdict = d.value("verdict", "none");
-    if (it != actuators.end() && verdict != "none" && d["findings"].is_array() &&
-        !d["findings"].empty()) {
-      const nlohmann::json& f = d["findings"][0];
+    const auto findings = d.find("findings");
+    if (it != actuators.end() && verdict != "none" && findings != d.end() && findings->is_array() &&
+        !findings->empty() && findings->front().is_object()) {
+      const nlohmann::json& f = findings->front();
       Alert alert;
       alert.kind = verdict;
       alert.severity = 1;
       double first_s = 0.0, last_s = 0.0;
-      if (f["where"].is_array() && !f["where"].empty()) {
-        first_s = f["where"].front().value("t_start_s", 0.0);
-        last_s = f["where"].back().value("t_end_s", 0.0);
+      const auto where = f.find("where");
+      if (where != f.end() && where->is_array() && !where->empty()) {
+        first_s = where->front().value("t_start_s", 0.0);
+        last_s = where->back().value("t_end_s", 0.0);
       }
       alert.start_utime = result.trial_start_utime + static_cast<int64_t>(first_s * 1e6);
       alert.end_utime = result.trial_start_utime + static_cast<int64_t>(last_s * 1e6);
+      // Magnitude: the held-out RMSE the model leaves; threshold: what is left with the
+      // effect added.
       alert.magnitude_mm = f.value("heldout_rmse_before_mm", 0.0);
       alert.threshold_mm = f.value("heldout_rmse_after_mm", 0.0);
       alert.text = "trial " + std::to_string(result.trial_id) + ": " + f.value("explanation", "");
