@@ -786,6 +786,24 @@ nlohmann::json AlertJson(const storage::AlertRecord& a) {
           {"text", a.text}};
 }
 
+// A stored trial's samples as a recording, time from its first sample; throws if it has
+// fewer than min_samples.
+model::Recording RecordingOfTrial(const std::vector<storage::Sample>& samples, int64_t trial_id,
+                                  size_t min_samples) {
+  if (samples.size() < min_samples)
+    throw std::runtime_error("trial " + std::to_string(trial_id) + " has only " +
+                             std::to_string(samples.size()) + " samples; " +
+                             std::to_string(min_samples) + " are needed");
+  model::Recording rec;
+  rec.source = "trial " + std::to_string(trial_id);
+  for (const storage::Sample& s : samples) {
+    rec.t_s.push_back(1e-6 * static_cast<double>(s.utime - samples.front().utime));
+    rec.voltage_V.push_back(s.voltage_V);
+    rec.deflection_mm.push_back(s.deflection_mm);
+  }
+  return rec;
+}
+
 // Diagnosis of one stored trial against the actuator's active model (or, without one or
 // when asked, against the seed's structure identified on the trial), on the worker thread
 // with its own connection.
@@ -795,17 +813,8 @@ IdentifyResult RunDiagnosis(const std::string& database, const std::string& actu
   try {
     storage::Database db = storage::Database::Open(database);
     const std::vector<storage::Sample> samples = db.Samples(trial_id);
-    if (samples.size() < 200)
-      throw std::runtime_error("trial " + std::to_string(trial_id) + " has only " +
-                               std::to_string(samples.size()) + " samples; diagnosis needs 200");
-    model::Recording rec;
-    rec.source = "trial " + std::to_string(trial_id);
+    const model::Recording rec = RecordingOfTrial(samples, trial_id, 200);
     result.trial_start_utime = samples.front().utime;
-    for (const storage::Sample& s : samples) {
-      rec.t_s.push_back(1e-6 * static_cast<double>(s.utime - samples.front().utime));
-      rec.voltage_V.push_back(s.voltage_V);
-      rec.deflection_mm.push_back(s.deflection_mm);
-    }
     std::optional<model::TsModel> trusted;
     model::DiagnoseOptions options;
     int32_t version = 0;
@@ -814,8 +823,8 @@ IdentifyResult RunDiagnosis(const std::string& database, const std::string& actu
         const model::ModelDocument doc =
             model::ParseModelJson(active->model_json, "model " + std::to_string(active->version));
         trusted = model::AsTsModel(doc);
-        for (const model::Augmentation& a : doc.augmentations)
-          options.baseline_effects.push_back(model::EffectFromAugmentation(a));
+        options.baseline_effects =
+            model::EffectsOf(doc, "model " + std::to_string(active->version));
         version = active->version;
       }
     }
@@ -841,18 +850,8 @@ IdentifyResult RunIdentification(const std::string& database, const std::string&
     std::vector<storage::Sample> all;
     for (int64_t id : trial_ids) {
       const std::vector<storage::Sample> samples = db.Samples(id);
-      if (samples.size() < 100)
-        throw std::runtime_error("trial " + std::to_string(id) + " has only " +
-                                 std::to_string(samples.size()) + " samples");
-      model::Recording rec;
-      rec.source = "trial " + std::to_string(id);
-      for (const storage::Sample& s : samples) {
-        rec.t_s.push_back(1e-6 * static_cast<double>(s.utime - samples.front().utime));
-        rec.voltage_V.push_back(s.voltage_V);
-        rec.deflection_mm.push_back(s.deflection_mm);
-      }
+      recordings.push_back(RecordingOfTrial(samples, id, 100));
       all.insert(all.end(), samples.begin(), samples.end());
-      recordings.push_back(std::move(rec));
     }
     model::TsIdentifyOptions options;
     options.local.num_zeros = config.zeros;

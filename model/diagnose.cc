@@ -1003,6 +1003,18 @@ Effect EffectFromAugmentation(const Augmentation& augmentation) {
   return effect;
 }
 
+std::vector<Effect> EffectsOf(const ModelDocument& document, const std::string& source) {
+  std::vector<Effect> effects;
+  for (const Augmentation& a : document.augmentations) {
+    try {
+      effects.push_back(EffectFromAugmentation(a));
+    } catch (const InputError& e) {
+      throw InputError(source + ": " + e.what());
+    }
+  }
+  return effects;
+}
+
 Augmentation AugmentationOf(const Effect& effect) {
   Augmentation a;
   a.effect = EffectName(effect.kind);

@@ -112,6 +112,9 @@ std::vector<double> SimulateAugmented(const TsModel& baseline, const Recording& 
 // non-finite parameter).
 Effect EffectFromAugmentation(const Augmentation& augmentation);
 Augmentation AugmentationOf(const Effect& effect);
+// Every augmentation of a model document as an effect; errors are prefixed with `source`
+// (the file or record the document came from).
+std::vector<Effect> EffectsOf(const ModelDocument& document, const std::string& source);
 
 struct TimeSpan {
   double t_start_s = 0.0;

@@ -112,13 +112,7 @@ void RunDiagnose(const DiagnoseArgs& args) {
   if (!args.model_path.empty()) {
     doc = model::ReadModelFile(args.model_path);
     trusted = model::AsTsModel(*doc);
-    for (const model::Augmentation& a : doc->augmentations) {
-      try {
-        options.baseline_effects.push_back(model::EffectFromAugmentation(a));
-      } catch (const model::InputError& e) {
-        throw model::InputError(args.model_path + ": " + e.what());
-      }
-    }
+    options.baseline_effects = model::EffectsOf(*doc, args.model_path);
   }
   const model::Diagnosis d = model::Diagnose(rec, trusted, options);
   if (!args.report_path.empty()) {

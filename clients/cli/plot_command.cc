@@ -55,14 +55,7 @@ std::string Stack(const std::vector<Chart>& charts) {
 
 std::vector<double> Predict(const model::ModelDocument& doc, const model::Recording& rec,
                             const std::string& model_path) {
-  std::vector<model::Effect> effects;
-  for (const model::Augmentation& a : doc.augmentations) {
-    try {
-      effects.push_back(model::EffectFromAugmentation(a));
-    } catch (const model::InputError& e) {
-      throw model::InputError(model_path + ": " + e.what());
-    }
-  }
+  const std::vector<model::Effect> effects = model::EffectsOf(doc, model_path);
   std::vector<double> y = model::SimulateAugmented(model::AsTsModel(doc), rec, effects);
   for (size_t k = 0; k < y.size(); ++k)
     if (!std::isfinite(y[k]))

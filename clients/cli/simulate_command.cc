@@ -31,14 +31,7 @@ void RunSimulate(const SimulateArgs& args) {
       model::ReadRecordingCsv(args.recording_path, {.require_deflection = false});
   // A model file's augmentations (effects added by `flexid diagnose --out`) are part of the
   // model: they are applied on top of it.
-  std::vector<model::Effect> effects;
-  for (const model::Augmentation& a : doc.augmentations) {
-    try {
-      effects.push_back(model::EffectFromAugmentation(a));
-    } catch (const model::InputError& e) {
-      throw model::InputError(args.model_path + ": " + e.what());
-    }
-  }
+  const std::vector<model::Effect> effects = model::EffectsOf(doc, args.model_path);
   if (!effects.empty() && args.steady_start)
     throw UsageError("--steady-start: " + args.model_path +
                      " has augmentations, which are simulated from rest only");
