@@ -5,6 +5,7 @@
 
 #include "clients/cli/bus.h"
 #include "clients/cli/command.h"
+#include "clients/cli/source.h"
 #include "flexid/version.h"
 #include "model/errors.h"
 
@@ -21,6 +22,8 @@ int main(int argc, char** argv) {
   flexid::cli::RegisterBusCommands(app);
   app.add_option("--lcm", flexid::cli::LcmUrl(),
                  "LCM URL of the flexidd bus (default udpm://239.255.76.67:7667?ttl=0)");
+  app.add_option("--db", flexid::cli::DbPath(),
+                 "Read this database file directly instead of asking flexidd (offline forms)");
   try {
     app.parse(argc, argv);
   } catch (const CLI::Success& e) {

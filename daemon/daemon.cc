@@ -41,6 +41,7 @@
 #include "model/identify_ts.h"
 #include "model/model_file.h"
 #include "model/simulate.h"
+#include "storage/record_json.h"
 #include "storage/sample_writer.h"
 
 namespace flexid::daemon {
@@ -624,7 +625,7 @@ struct Daemon::Impl {
         LoadModel(&it->second, *result.model);  // hot swap
         AnnounceModel(&it->second, *result.model);
       }
-      nlohmann::json out = ModelSummary(*result.model);
+      nlohmann::json out = storage::ModelSummaryJson(*result.model);
       out["model"] = nlohmann::json::parse(result.model->model_json);
       Reply(result.request, {flexid::rpc_reply_t::kOk, out, "", false});
     }
@@ -746,45 +747,9 @@ struct Daemon::Impl {
     spdlog::info("stopped [received: {}, accepted: {}, stored: {}, dropped: {}]",
                  c.messages_received, c.samples_accepted, c.samples_stored, c.dropped_queue_full);
   }
-
-  nlohmann::json ModelSummary(const storage::ModelRecord& m) const {
-    nlohmann::json fit = m.fit_json.empty() ? nlohmann::json(nullptr)
-                                            : nlohmann::json::parse(m.fit_json, nullptr, false);
-    return {{"actuator", m.actuator_id},
-            {"version", m.version},
-            {"created_utime", m.created_utime},
-            {"active", m.active},
-            {"trials", m.trial_ids},
-            {"samples_hash", m.samples_hash},
-            {"flexid_version", m.flexid_version},
-            {"fit", fit}};
-  }
 };
 
 namespace {
-
-nlohmann::json TrialJson(const storage::Trial& t) {
-  return {{"id", t.id},
-          {"actuator", t.actuator_id},
-          {"protocol", t.protocol},
-          {"start_utime", t.start_utime},
-          {"end_utime", t.end_utime},
-          {"state", storage::TrialStateName(t.state)},
-          {"samples", t.samples}};
-}
-
-nlohmann::json AlertJson(const storage::AlertRecord& a) {
-  return {{"id", a.id},
-          {"actuator", a.actuator_id},
-          {"kind", a.kind},
-          {"severity", a.severity},
-          {"utime", a.utime},
-          {"start_utime", a.start_utime},
-          {"end_utime", a.end_utime},
-          {"magnitude_mm", a.magnitude_mm},
-          {"threshold_mm", a.threshold_mm},
-          {"text", a.text}};
-}
 
 // A stored trial's samples as a recording, time from its first sample; throws if it has
 // fewer than min_samples.
@@ -943,28 +908,29 @@ RpcOutcome Daemon::Impl::HandleRequest(const flexid::rpc_request_t& request) {
       nlohmann::json list = nlohmann::json::array();
       for (const storage::Trial& t :
            db.Trials(filter, static_cast<int>(IntegerArgument(args, "limit", 100, 1, 10000))))
-        list.push_back(TrialJson(t));
+        list.push_back(storage::TrialJson(t));
       return {Reply::kOk, list, "", false};
     }
     if (method == "trial_samples") {
       const int64_t id = RequiredIntegerArgument(args, "trial", 1, INT64_MAX);
       const auto trial = db.FindTrial(id);
       if (!trial) return {Reply::kNotFound, nullptr, "no trial " + std::to_string(id), false};
+      // Pages by offset, or (cheaper for long trials) by the last utime of the previous page.
       const int64_t offset = IntegerArgument(args, "offset", 0, 0, INT64_MAX);
+      const int64_t after = IntegerArgument(args, "after_utime", INT64_MIN, INT64_MIN, INT64_MAX);
       const int64_t limit = IntegerArgument(args, "limit", 5000, 1, 20000);
-      const std::vector<storage::Sample> samples = db.Samples(id);
+      const std::vector<storage::Sample> page = db.SamplesPage(id, after, offset, limit);
       nlohmann::json utime = nlohmann::json::array(), volts = nlohmann::json::array(),
                      mm = nlohmann::json::array();
-      for (int64_t k = offset;
-           k < std::min<int64_t>(offset + limit, static_cast<int64_t>(samples.size())); ++k) {
-        utime.push_back(samples[static_cast<size_t>(k)].utime);
-        volts.push_back(samples[static_cast<size_t>(k)].voltage_V);
-        mm.push_back(samples[static_cast<size_t>(k)].deflection_mm);
+      for (const storage::Sample& s : page) {
+        utime.push_back(s.utime);
+        volts.push_back(s.voltage_V);
+        mm.push_back(s.deflection_mm);
       }
       return {Reply::kOk,
-              {{"trial", TrialJson(*trial)},
+              {{"trial", storage::TrialJson(*trial)},
                {"offset", offset},
-               {"total", samples.size()},
+               {"total", trial->samples},
                {"utime", utime},
                {"voltage_V", volts},
                {"deflection_mm", mm}},
@@ -975,7 +941,7 @@ RpcOutcome Daemon::Impl::HandleRequest(const flexid::rpc_request_t& request) {
       ActuatorState* state = actuator_of(true);
       nlohmann::json list = nlohmann::json::array();
       for (const storage::ModelRecord& m : db.Models(state->info.id))
-        list.push_back(ModelSummary(m));
+        list.push_back(storage::ModelSummaryJson(m));
       return {Reply::kOk, list, "", false};
     }
     if (method == "model") {
@@ -984,7 +950,7 @@ RpcOutcome Daemon::Impl::HandleRequest(const flexid::rpc_request_t& request) {
       const auto m =
           version == 0 ? db.ActiveModel(state->info.id) : db.FindModel(state->info.id, version);
       if (!m) return {Reply::kNotFound, nullptr, "no such model of " + state->info.id, false};
-      nlohmann::json out = ModelSummary(*m);
+      nlohmann::json out = storage::ModelSummaryJson(*m);
       out["model"] = nlohmann::json::parse(m->model_json);
       return {Reply::kOk, out, "", false};
     }
@@ -1006,7 +972,7 @@ RpcOutcome Daemon::Impl::HandleRequest(const flexid::rpc_request_t& request) {
       for (const storage::AlertRecord& a :
            db.Alerts(filter, IntegerArgument(args, "since_utime", 0, 0, INT64_MAX),
                      static_cast<int>(IntegerArgument(args, "limit", 100, 1, 10000))))
-        list.push_back(AlertJson(a));
+        list.push_back(storage::AlertJson(a));
       return {Reply::kOk, list, "", false};
     }
     if (method == "trial_start" || method == "trial_stop") {

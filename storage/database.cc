@@ -753,6 +753,18 @@ std::vector<Sample> Database::Samples(int64_t trial_id) {
   return samples;
 }
 
+std::vector<Sample> Database::SamplesPage(int64_t trial_id, int64_t after_utime, int64_t offset,
+                                          int64_t limit) {
+  if (offset < 0 || limit < 0) throw StorageError(path_ + ": negative sample offset or limit");
+  Statement select(Handle(), path_,
+                   "SELECT utime, voltage_V, deflection_mm FROM samples WHERE trial_id = ? "
+                   "AND utime > ? ORDER BY utime LIMIT ? OFFSET ?");
+  select.Bind(1, trial_id).Bind(2, after_utime).Bind(3, limit).Bind(4, offset);
+  std::vector<Sample> samples;
+  while (select.Step()) samples.push_back({select.Int64(0), select.Double(1), select.Double(2)});
+  return samples;
+}
+
 int64_t Database::SampleCount(int64_t trial_id) {
   Statement select(Handle(), path_, "SELECT sample_count FROM trials WHERE id = ?");
   return select.Bind(1, trial_id).Step() ? select.Int64(0) : 0;

@@ -156,6 +156,11 @@ class Database {
   // The samples of a trial in utime order (empty for an unknown trial). Doubles read back
   // bit for bit as written, except that -0.0 reads back as 0.0.
   std::vector<Sample> Samples(int64_t trial_id);
+  // One page of them: the samples with utime > after_utime, in utime order, skipping the
+  // first `offset` of those and returning at most `limit` (>= 0). Paging by after_utime
+  // (the last utime of the previous page) costs the same for every page.
+  std::vector<Sample> SamplesPage(int64_t trial_id, int64_t after_utime, int64_t offset,
+                                  int64_t limit);
   // Number of samples stored for the trial (0 for an unknown trial).
   int64_t SampleCount(int64_t trial_id);
 

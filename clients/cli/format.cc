@@ -1,8 +1,12 @@
 #include "clients/cli/format.h"
 
+#include <unistd.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
+#include <iostream>
 
 namespace flexid::cli {
 
@@ -74,6 +78,44 @@ void Table::Print(std::ostream& out, const std::string& indent) const {
   };
   print_row(header_);
   for (const auto& row : rows_) print_row(row);
+}
+
+Progress::Progress(std::string what, std::string unit)
+    : what_(std::move(what)), unit_(std::move(unit)) {
+  terminal_ = isatty(STDERR_FILENO) == 1;
+  const char* forced = std::getenv("FLEXID_PROGRESS");
+  enabled_ = terminal_ || (forced != nullptr && std::string(forced) == "1");
+}
+
+Progress::~Progress() { Finish(); }
+
+void Progress::Update(int64_t done, int64_t total) {
+  if (!enabled_) return;
+  const int percent = total > 0 ? static_cast<int>(100 * std::min(done, total) / total) : 100;
+  const std::string line = what_ + ": " + std::to_string(done) + " of " + std::to_string(total) +
+                           " " + unit_ + " (" + std::to_string(percent) + " %)";
+  if (terminal_) {
+    std::cerr << '\r' << line << "\x1b[K" << std::flush;
+    open_line_ = true;
+  } else if (percent / 10 != last_decile_) {
+    last_decile_ = percent / 10;
+    std::cerr << line << '\n';
+  }
+}
+
+void Progress::Note(const std::string& text) {
+  if (!enabled_) return;
+  if (terminal_) {
+    std::cerr << '\r' << what_ << ": " << text << "\x1b[K" << std::flush;
+    open_line_ = true;
+  } else {
+    std::cerr << what_ << ": " << text << '\n';
+  }
+}
+
+void Progress::Finish() {
+  if (open_line_) std::cerr << '\n';
+  open_line_ = false;
 }
 
 }  // namespace flexid::cli

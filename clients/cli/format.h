@@ -2,6 +2,7 @@
 #pragma once
 
 #include <complex>
+#include <cstdint>
 #include <ostream>
 #include <string>
 #include <vector>
@@ -27,6 +28,27 @@ class Table {
  private:
   std::vector<std::string> header_;
   std::vector<std::vector<std::string>> rows_;
+};
+
+// Progress of a long operation (identification, import, export) on stderr, e.g.
+// "export trial 3: 450000 of 1000000 samples (45 %)". Shown only when stderr is a terminal
+// (redrawn in place) or FLEXID_PROGRESS=1 is set (one line per step of 10 %), so scripts
+// that read stderr still see only the one error line.
+class Progress {
+ public:
+  explicit Progress(std::string what, std::string unit = "samples");
+  ~Progress();
+  Progress(const Progress&) = delete;
+  Progress& operator=(const Progress&) = delete;
+  void Update(int64_t done, int64_t total);
+  // A phase without a count, e.g. "identifying S1 on trials 3, 4".
+  void Note(const std::string& text);
+  void Finish();
+
+ private:
+  std::string what_, unit_;
+  bool enabled_ = false, terminal_ = false, open_line_ = false;
+  int last_decile_ = -1;
 };
 
 }  // namespace flexid::cli

@@ -1,0 +1,223 @@
+#include "clients/cli/source.h"
+
+#include <cmath>
+#include <filesystem>
+#include <flexid/rpc_reply_t.hpp>
+
+#include "clients/cli/bus.h"
+#include "clients/cli/command.h"
+#include "storage/database.h"
+#include "storage/record_json.h"
+
+namespace flexid::cli {
+
+std::string& DbPath() {
+  static std::string path;
+  return path;
+}
+
+namespace {
+
+std::chrono::milliseconds Milliseconds(double seconds) {
+  return std::chrono::milliseconds(static_cast<int64_t>(seconds * 1000.0));
+}
+
+// Typed access to request arguments, with the daemon's error wording.
+int64_t IntegerArg(const nlohmann::json& args, const char* name, int64_t fallback) {
+  const auto it = args.find(name);
+  if (it == args.end()) return fallback;
+  if (!it->is_number_integer())
+    throw UsageError(std::string("argument \"") + name + "\" must be an integer");
+  return it->get<int64_t>();
+}
+
+std::string ActuatorArg(const nlohmann::json& args, bool required) {
+  const auto it = args.find("actuator");
+  if (it == args.end() || (it->is_string() && it->get<std::string>().empty())) {
+    if (required) throw UsageError("an actuator is needed (--actuator ID)");
+    return "";
+  }
+  if (!it->is_string()) throw UsageError("argument \"actuator\" must be a string");
+  return it->get<std::string>();
+}
+
+storage::Database OpenFile() {
+  try {
+    if (!std::filesystem::exists(DbPath()))
+      throw OperationError(DbPath() + ": no such database file");
+    return storage::Database::Open(DbPath());
+  } catch (const storage::StorageError& e) {
+    throw OperationError(e.what());
+  }
+}
+
+// Offline answers, in the daemon's shapes (daemon/daemon.cc HandleRequest).
+nlohmann::json QueryFile(const std::string& method, const nlohmann::json& args) {
+  storage::Database db = OpenFile();
+  auto known_actuator = [&db](const std::string& id) {
+    if (!db.FindActuator(id)) throw UsageError("unknown actuator \"" + id + "\" in " + DbPath());
+    return id;
+  };
+  if (method == "status") {
+    int64_t trials = 0, samples = 0, recording = 0, models = 0;
+    const std::vector<storage::Actuator> actuators = db.Actuators();
+    for (const storage::Trial& t : db.Trials({}, -1)) {
+      ++trials;
+      samples += t.samples;
+      recording += t.state == storage::TrialState::kRecording;
+    }
+    for (const storage::Actuator& a : actuators)
+      models += static_cast<int64_t>(db.Models(a.id).size());
+    return {{"database", DbPath()},
+            {"schema_version", db.SchemaVersion()},
+            {"actuators", actuators.size()},
+            {"trials", trials},
+            {"trials_recording", recording},
+            {"samples_stored", samples},
+            {"models", models},
+            {"alerts", db.Alerts({}, 0, -1).size()}};
+  }
+  if (method == "actuators") {
+    nlohmann::json list = nlohmann::json::array();
+    for (const storage::Actuator& a : db.Actuators()) {
+      nlohmann::json entry = storage::ActuatorJson(a);
+      const auto active = db.ActiveModel(a.id);
+      entry["model_version"] = active ? active->version : 0;
+      int64_t recording = 0;
+      for (const storage::Trial& t : db.Trials(a.id, -1))
+        if (t.state == storage::TrialState::kRecording) recording = t.id;
+      entry["trial"] = recording;
+      list.push_back(entry);
+    }
+    return list;
+  }
+  if (method == "trials") {
+    std::optional<std::string> filter;
+    if (const std::string id = ActuatorArg(args, false); !id.empty()) filter = known_actuator(id);
+    nlohmann::json list = nlohmann::json::array();
+    for (const storage::Trial& t :
+         db.Trials(filter, static_cast<int>(IntegerArg(args, "limit", 100))))
+      list.push_back(storage::TrialJson(t));
+    return list;
+  }
+  if (method == "trial_samples") {
+    const int64_t id = IntegerArg(args, "trial", 0);
+    const auto trial = db.FindTrial(id);
+    if (!trial) throw UsageError("no trial " + std::to_string(id) + " in " + DbPath());
+    const int64_t offset = IntegerArg(args, "offset", 0);
+    const std::vector<storage::Sample> page = db.SamplesPage(
+        id, IntegerArg(args, "after_utime", INT64_MIN), offset, IntegerArg(args, "limit", 5000));
+    nlohmann::json utime = nlohmann::json::array(), volts = nlohmann::json::array(),
+                   mm = nlohmann::json::array();
+    for (const storage::Sample& s : page) {
+      utime.push_back(s.utime);
+      volts.push_back(s.voltage_V);
+      mm.push_back(s.deflection_mm);
+    }
+    return {{"trial", storage::TrialJson(*trial)},
+            {"offset", offset},
+            {"total", trial->samples},
+            {"utime", utime},
+            {"voltage_V", volts},
+            {"deflection_mm", mm}};
+  }
+  if (method == "models") {
+    nlohmann::json list = nlohmann::json::array();
+    for (const storage::ModelRecord& m : db.Models(known_actuator(ActuatorArg(args, true))))
+      list.push_back(storage::ModelSummaryJson(m));
+    return list;
+  }
+  if (method == "model") {
+    const std::string id = known_actuator(ActuatorArg(args, true));
+    const auto version = static_cast<int32_t>(IntegerArg(args, "version", 0));
+    const auto m = version == 0 ? db.ActiveModel(id) : db.FindModel(id, version);
+    if (!m)
+      throw UsageError(version == 0 ? id + " has no active model"
+                                    : "no model version " + std::to_string(version) + " of " + id);
+    nlohmann::json out = storage::ModelSummaryJson(*m);
+    out["model"] = nlohmann::json::parse(m->model_json);
+    return out;
+  }
+  if (method == "alerts") {
+    std::optional<std::string> filter;
+    if (const std::string id = ActuatorArg(args, false); !id.empty()) filter = id;
+    nlohmann::json list = nlohmann::json::array();
+    for (const storage::AlertRecord& a :
+         db.Alerts(filter, IntegerArg(args, "since_utime", 0),
+                   static_cast<int>(IntegerArg(args, "limit", 100))))
+      list.push_back(storage::AlertJson(a));
+    return list;
+  }
+  throw UsageError("\"" + method + "\" needs a running flexidd; it has no offline form (--db)");
+}
+
+nlohmann::json QueryDaemon(const std::string& method, const nlohmann::json& args,
+                           double timeout_s) {
+  const RpcResult r = CallDaemon(method, args, Milliseconds(timeout_s));
+  if (r.status == flexid::rpc_reply_t::kOk) return r.result;
+  if (r.status == flexid::rpc_reply_t::kBadRequest || r.status == flexid::rpc_reply_t::kNotFound)
+    throw UsageError(r.daemon_id + ": " + r.error);
+  throw OperationError(r.daemon_id + ": " + r.error);
+}
+
+}  // namespace
+
+nlohmann::json Query(const std::string& method, const nlohmann::json& args, double timeout_s) {
+  if (!Offline()) return QueryDaemon(method, args, timeout_s);
+  try {
+    return QueryFile(method, args);
+  } catch (const storage::StorageError& e) {
+    throw OperationError(e.what());
+  }
+}
+
+nlohmann::json CallOnline(const std::string& method, const nlohmann::json& args, double timeout_s) {
+  if (Offline())
+    throw UsageError("\"" + method + "\" asks flexidd to act; it cannot run on a --db file");
+  return QueryDaemon(method, args, timeout_s);
+}
+
+StoredTrial LoadTrial(int64_t trial_id,
+                      const std::function<void(int64_t done, int64_t total)>& progress) {
+  constexpr int64_t kPage = 20000;  // the daemon's largest page
+  StoredTrial out;
+  int64_t after = INT64_MIN;
+  while (true) {
+    const nlohmann::json page =
+        Query("trial_samples", {{"trial", trial_id}, {"after_utime", after}, {"limit", kPage}});
+    if (out.trial.is_null()) out.trial = page.at("trial");
+    const auto& utime = page.at("utime");
+    const auto& volts = page.at("voltage_V");
+    const auto& mm = page.at("deflection_mm");
+    if (volts.size() != utime.size() || mm.size() != utime.size())
+      throw OperationError("trial " + std::to_string(trial_id) +
+                           ": reply columns differ in length");
+    for (size_t k = 0; k < utime.size(); ++k) {
+      out.utime.push_back(utime[k].get<int64_t>());
+      // null: a non-finite value (JSON has none); stored samples are always finite.
+      out.voltage_V.push_back(volts[k].is_number() ? volts[k].get<double>() : NAN);
+      out.deflection_mm.push_back(mm[k].is_number() ? mm[k].get<double>() : NAN);
+    }
+    if (progress) progress(static_cast<int64_t>(out.utime.size()), page.at("total").get<int64_t>());
+    if (static_cast<int64_t>(utime.size()) < kPage) break;
+    after = out.utime.back();
+  }
+  return out;
+}
+
+model::Recording RecordingOf(const StoredTrial& trial, size_t min_samples) {
+  const int64_t id = trial.trial.value("id", int64_t{0});
+  if (trial.utime.size() < min_samples)
+    throw UsageError("trial " + std::to_string(id) + " has " + std::to_string(trial.utime.size()) +
+                     " samples; at least " + std::to_string(min_samples) + " are needed");
+  model::Recording rec;
+  rec.source = "trial " + std::to_string(id);
+  for (size_t k = 0; k < trial.utime.size(); ++k) {
+    rec.t_s.push_back(1e-6 * static_cast<double>(trial.utime[k] - trial.utime.front()));
+    rec.voltage_V.push_back(trial.voltage_V[k]);
+    rec.deflection_mm.push_back(trial.deflection_mm[k]);
+  }
+  return rec;
+}
+
+}  // namespace flexid::cli
