@@ -9,13 +9,18 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <flexid/deflection_sample_t.hpp>
 #include <flexid/trial_control_t.hpp>
 #include <flexid/voltage_sample_t.hpp>
+#include <fstream>
 #include <lcm/lcm-cpp.hpp>
+#include <map>
 #include <memory>
 #include <random>
 #include <regex>
+#include <sstream>
+#include <stdexcept>
 #include <string>
 #include <thread>
 #include <vector>
@@ -106,8 +111,8 @@ TEST(Protocol, EveryErrorIsOneClearLine) {
       {"", "protocol \"\": empty specification (expected NAME[:KEY=VALUE,...])"},
       {":level=2", "protocol \":level=2\": empty specification (expected NAME[:KEY=VALUE,...])"},
       {"ramp:level=2",
-       "protocol \"ramp:level=2\": unknown protocol \"ramp\" (expected step, square, staircase "
-       "or hold)"},
+       "protocol \"ramp:level=2\": unknown protocol \"ramp\" (expected step, square, staircase, "
+       "hold, sweep or random)"},
       {"step", "protocol \"step\": missing key \"level\""},
       {"step:level=2", "protocol \"step:level=2\": missing key \"duration\""},
       {"step:level=2,duration=5,speed=3",
@@ -759,6 +764,412 @@ TEST(Rig, SeededNoiseIsReproducibleAndHasTheGivenSigma) {
 }
 
 // ---------------------------------------------------------------------------------------
+// Frequency sweep and multilevel random
+// ---------------------------------------------------------------------------------------
+
+// The times at which VoltageAt changes, sampled every millisecond over [0, end_s], with the
+// new voltage; the first entry is the voltage at 0 s.
+std::vector<std::pair<double, double>> Transitions(const Protocol& p, double end_s) {
+  std::vector<std::pair<double, double>> changes = {{0.0, VoltageAt(p, 0.0)}};
+  const auto steps = static_cast<int64_t>(std::llround(end_s * 1000.0));
+  for (int64_t k = 1; k <= steps; ++k) {
+    const double t_s = static_cast<double>(k) / 1000.0;
+    const double voltage_V = VoltageAt(p, t_s);
+    if (voltage_V != changes.back().second) changes.emplace_back(t_s, voltage_V);
+  }
+  return changes;
+}
+
+TEST(Protocol, SweepDefaultsToTheSeedsFrequencies) {
+  const Protocol p = ParseProtocol("sweep:level=5");
+  EXPECT_EQ(p.shape, Protocol::Shape::kSweep);
+  EXPECT_EQ(p.level_V, 5.0);
+  EXPECT_EQ(p.frequencies_Hz,
+            (std::vector<double>{0.0025, 0.02, 0.031, 0.054, 0.11, 0.15, 1.1}));  // Figure 6
+  EXPECT_EQ(p.cycles, 3);
+  EXPECT_EQ(p.duty, 0.5);
+  // 3 * (400 + 50 + 32.258... + 18.518... + 9.0909... + 6.666... + 0.90909...) s.
+  EXPECT_NEAR(ProtocolDuration(p), 1552.329749103945, 1e-9);
+  const Protocol q = ParseProtocol("sweep:duty=0.25,frequencies=0.5/2,level=-3,cycles=4");
+  EXPECT_EQ(q.frequencies_Hz, (std::vector<double>{0.5, 2.0}));
+  EXPECT_EQ(q.cycles, 4);
+  EXPECT_EQ(q.duty, 0.25);
+  EXPECT_EQ(q.level_V, -3.0);
+  EXPECT_EQ(ProtocolDuration(q), 4 * 2.0 + 4 * 0.5);
+}
+
+// 0.1 Hz then 0.5 Hz, 2 cycles each, duty 0.25: on 2.5 s of every 10 s for 20 s, then on
+// 0.5 s of every 2 s for 4 s, then rest.
+TEST(VoltageAt, SweepPlaysEachFrequencyInTurn) {
+  const Protocol p = ParseProtocol("sweep:level=5,frequencies=0.1/0.5,cycles=2,duty=0.25");
+  EXPECT_EQ(ProtocolDuration(p), 24.0);
+  const std::vector<std::pair<double, double>> expected = {
+      {0.0, 5}, {2.5, 0}, {10.0, 5}, {12.5, 0}, {20.0, 5}, {20.5, 0}, {22.0, 5}, {22.5, 0}};
+  EXPECT_EQ(Transitions(p, 60.0), expected);
+  EXPECT_EQ(VoltageAt(p, -1.0), 0.0);
+  // The frequencies play in the order given: 0.5 Hz first.
+  const Protocol reversed = ParseProtocol("sweep:level=5,frequencies=0.5/0.1,cycles=2,duty=0.25");
+  EXPECT_EQ(Transitions(reversed, 60.0),
+            (std::vector<std::pair<double, double>>{
+                {0.0, 5}, {0.5, 0}, {2.0, 5}, {2.5, 0}, {4.0, 5}, {6.5, 0}, {14.0, 5}, {16.5, 0}}));
+}
+
+// The seed's sweep: the first 0.0025 Hz period is 200 s on, 200 s off; the 1.1 Hz part
+// starts after 3 rounds of the six slower periods and ends the protocol.
+TEST(VoltageAt, TheSeedsSweepStartsEachFrequencyOnTime) {
+  const Protocol p = ParseProtocol("sweep:level=5");
+  EXPECT_EQ(VoltageAt(p, 199.9), 5.0);
+  EXPECT_EQ(VoltageAt(p, 200.1), 0.0);
+  EXPECT_EQ(VoltageAt(p, 1199.9), 0.0);  // the end of the 3rd 0.0025 Hz period
+  EXPECT_EQ(VoltageAt(p, 1200.0), 5.0);  // 0.02 Hz starts: 25 s on
+  EXPECT_EQ(VoltageAt(p, 1224.9), 5.0);
+  EXPECT_EQ(VoltageAt(p, 1225.1), 0.0);
+  double start_s = 0.0;
+  for (const double f_Hz : {0.0025, 0.02, 0.031, 0.054, 0.11, 0.15}) start_s += 3.0 / f_Hz;
+  EXPECT_EQ(VoltageAt(p, start_s - 1e-3), 0.0);
+  EXPECT_EQ(VoltageAt(p, start_s + 1e-3), 5.0);
+  EXPECT_EQ(VoltageAt(p, start_s + 0.5 / 1.1 - 1e-3), 5.0);
+  EXPECT_EQ(VoltageAt(p, start_s + 0.5 / 1.1 + 1e-3), 0.0);
+  EXPECT_NEAR(ProtocolDuration(p), start_s + 3.0 / 1.1, 1e-9);
+  EXPECT_EQ(VoltageAt(p, ProtocolDuration(p) + 100.0), 0.0);
+}
+
+// Through the Rig at 10 Hz: 0.05 Hz (20 s) and 0.25 Hz (4 s), 2 cycles each.
+TEST(Rig, SweepChangesTheVoltageAtTheRightSamples) {
+  rig::RigOptions options;
+  options.start_utime = 1'000'000;
+  rig::Rig r(model::SeedTsModel(), ParseProtocol("sweep:level=5,frequencies=0.05/0.25,cycles=2"),
+             {}, options);
+  ASSERT_EQ(r.sample_count(), 480);
+  std::vector<int64_t> changed;
+  std::vector<double> changed_to_V;
+  rig::RigSample sample;
+  while (r.Next(&sample)) {
+    if (!sample.voltage_changed) continue;
+    changed.push_back(sample.index);
+    changed_to_V.push_back(sample.voltage_V);
+    EXPECT_EQ(sample.utime, 1'000'000 + sample.index * 100'000);
+  }
+  EXPECT_EQ(changed, (std::vector<int64_t>{0, 100, 200, 300, 400, 420, 440, 460}));
+  EXPECT_EQ(changed_to_V, (std::vector<double>{5, 0, 5, 0, 5, 0, 5, 0}));
+}
+
+TEST(Rig, RejectsASweepItsRateCannotResolve) {
+  const Protocol seed_sweep = ParseProtocol("sweep:level=5");
+  rig::RigOptions options;  // 10 Hz: 1.1 Hz has 0.45 s halves, over 2 samples
+  EXPECT_EQ(rig::Rig(GainModel(), seed_sweep, {}, options).sample_count(), 15524);
+  options.rate_Hz = 4.5;
+  EXPECT_NO_THROW(rig::Rig(GainModel(), seed_sweep, {}, options));
+  options.rate_Hz = 4.0;
+  EXPECT_EQ(ErrorOf([&] { rig::Rig(GainModel(), seed_sweep, {}, options); }),
+            "protocol \"sweep:level=5\": at 1.1 Hz the shorter part of a period (0.454545 s at "
+            "duty 0.5) is under 2 sample periods (0.5 s at 4 Hz); raise --rate-hz to at least 4.4 "
+            "or leave 1.1 Hz out");
+  // The shorter part of the period counts: duty 0.9 at 1 Hz leaves 0.1 s at 0 V.
+  options.rate_Hz = 10.0;
+  EXPECT_NE(ErrorOf([&] {
+              rig::Rig(GainModel(), ParseProtocol("sweep:level=5,frequencies=1,duty=0.9"), {},
+                       options);
+            }),
+            "");
+  EXPECT_NO_THROW(
+      rig::Rig(GainModel(), ParseProtocol("sweep:level=5,frequencies=1,duty=0.8"), {}, options));
+  EXPECT_EQ(ErrorOf([&] {
+              rig::Rig(GainModel(),
+                       ParseProtocol("random:levels=1/2,dwell_min=0.15,dwell_max=1,duration=5"), {},
+                       options);
+            }),
+            "protocol \"random:levels=1/2,dwell_min=0.15,dwell_max=1,duration=5\": dwell_min "
+            "(0.15 s) is under 2 sample periods (0.2 s at 10 Hz); raise --rate-hz to at least "
+            "13.3333 or lengthen dwell_min");
+}
+
+// The documented algorithm, written again: level first (r mod n, redrawn below 2^64 mod
+// n), then the dwell from the top 53 bits.
+std::vector<Protocol::Dwell> ExpectedSchedule(const std::vector<double>& levels_V,
+                                              double dwell_min_s, double dwell_max_s,
+                                              double duration_s, uint64_t seed) {
+  std::mt19937_64 generator(seed);
+  const uint64_t n = levels_V.size();
+  const uint64_t threshold = (UINT64_MAX - n + 1) % n;
+  std::vector<Protocol::Dwell> dwells;
+  for (double t_s = 0.0; t_s < duration_s;) {
+    uint64_t r = generator();
+    while (r < threshold) r = generator();
+    dwells.push_back({t_s, levels_V[r % n]});
+    t_s += dwell_min_s +
+           std::ldexp(static_cast<double>(generator() >> 11), -53) * (dwell_max_s - dwell_min_s);
+  }
+  return dwells;
+}
+
+bool SameSchedule(const std::vector<Protocol::Dwell>& a, const std::vector<Protocol::Dwell>& b) {
+  if (a.size() != b.size()) return false;
+  for (size_t i = 0; i < a.size(); ++i)
+    if (a[i].start_s != b[i].start_s || a[i].level_V != b[i].level_V) return false;
+  return true;
+}
+
+TEST(Protocol, RandomIsDeterministicForASeed) {
+  const std::string spec = "random:levels=1/2/3,dwell_min=2,dwell_max=5,duration=100,seed=7";
+  const Protocol p = ParseProtocol(spec);
+  EXPECT_EQ(p.shape, Protocol::Shape::kRandom);
+  EXPECT_EQ(p.levels_V, (std::vector<double>{1, 2, 3}));
+  EXPECT_EQ(p.dwell_min_s, 2.0);
+  EXPECT_EQ(p.dwell_max_s, 5.0);
+  EXPECT_EQ(p.seed, 7u);
+  EXPECT_EQ(ProtocolDuration(p), 100.0);
+  EXPECT_TRUE(SameSchedule(p.dwells, ParseProtocol(spec).dwells));
+  EXPECT_TRUE(SameSchedule(p.dwells, ExpectedSchedule({1, 2, 3}, 2, 5, 100, 7)));
+  EXPECT_FALSE(SameSchedule(
+      p.dwells,
+      ParseProtocol("random:levels=1/2/3,dwell_min=2,dwell_max=5,duration=100,seed=8").dwells));
+  // seed defaults to 1, whatever the rig's --seed.
+  EXPECT_TRUE(SameSchedule(
+      ParseProtocol("random:levels=1/2/3,dwell_min=2,dwell_max=5,duration=100").dwells,
+      ParseProtocol("random:levels=1/2/3,dwell_min=2,dwell_max=5,duration=100,seed=1").dwells));
+  EXPECT_TRUE(SameSchedule(
+      ParseProtocol("random:levels=4/-4,dwell_min=0.5,dwell_max=3,duration=50,seed=0").dwells,
+      ExpectedSchedule({4, -4}, 0.5, 3, 50, 0)));
+  // VoltageAt holds each dwell's level from its start to the next start.
+  for (size_t i = 0; i < p.dwells.size(); ++i) {
+    const double end_s = i + 1 < p.dwells.size() ? p.dwells[i + 1].start_s : 100.0;
+    EXPECT_EQ(VoltageAt(p, p.dwells[i].start_s), p.dwells[i].level_V) << i;
+    EXPECT_EQ(VoltageAt(p, end_s - 1e-6), p.dwells[i].level_V) << i;
+  }
+  EXPECT_EQ(VoltageAt(p, 1000.0), p.dwells.back().level_V);  // the last level holds
+}
+
+TEST(Protocol, RandomLevelsComeFromTheListAndDwellsStayInBounds) {
+  const std::vector<double> levels_V = {-2, 0.5, 4, 8};
+  const Protocol p =
+      ParseProtocol("random:levels=-2/0.5/4/8,dwell_min=2,dwell_max=5,duration=10000,seed=3");
+  ASSERT_GT(p.dwells.size(), 2000u);  // about 10000 / 3.5
+  EXPECT_EQ(p.dwells.front().start_s, 0.0);
+  std::vector<int> drawn(levels_V.size(), 0);
+  double shortest_s = 1e9, longest_s = 0.0;
+  for (size_t i = 0; i < p.dwells.size(); ++i) {
+    const auto level = std::find(levels_V.begin(), levels_V.end(), p.dwells[i].level_V);
+    ASSERT_NE(level, levels_V.end()) << p.dwells[i].level_V;
+    ++drawn[static_cast<size_t>(level - levels_V.begin())];
+    if (i + 1 == p.dwells.size()) {  // the last one is cut at the duration
+      EXPECT_LT(p.dwells[i].start_s, 10000.0);
+      EXPECT_GT(p.dwells[i].start_s, 10000.0 - 5.0);
+      continue;
+    }
+    const double dwell_s = p.dwells[i + 1].start_s - p.dwells[i].start_s;
+    ASSERT_GE(dwell_s, 2.0 - 1e-9) << i;
+    ASSERT_LE(dwell_s, 5.0 + 1e-9) << i;
+    shortest_s = std::min(shortest_s, dwell_s);
+    longest_s = std::max(longest_s, dwell_s);
+  }
+  // Uniform over [2, 5] s: ~2860 dwells come within 0.05 s of both ends (a miss has
+  // probability (1 - 0.05 / 3)^2860 ~ 1e-21); and each of the 4 levels gets about a quarter
+  // (binomial sd ~ 23 of ~715; 15 % is ~4.6 sd).
+  EXPECT_LT(shortest_s, 2.05);
+  EXPECT_GT(longest_s, 4.95);
+  const double quarter = static_cast<double>(p.dwells.size()) / 4.0;
+  for (const int count : drawn) EXPECT_NEAR(count, quarter, 0.15 * quarter);
+  // dwell_min == dwell_max: a fixed dwell, starts 0, 2, 4, ...
+  const Protocol fixed = ParseProtocol("random:levels=1/2,dwell_min=2,dwell_max=2,duration=9");
+  ASSERT_EQ(fixed.dwells.size(), 5u);
+  for (size_t i = 0; i < fixed.dwells.size(); ++i)
+    EXPECT_EQ(fixed.dwells[i].start_s, 2.0 * static_cast<double>(i));
+}
+
+// Through the Rig: duration * rate samples, and the voltage only from the list.
+TEST(Rig, RandomProtocolCoversItsDurationWithListedLevels) {
+  const Protocol p = ParseProtocol("random:levels=2/5/8,dwell_min=1,dwell_max=4,duration=60");
+  rig::Rig r(GainModel(), p, {}, {});
+  ASSERT_EQ(r.sample_count(), 600);
+  size_t dwell = 0;
+  rig::RigSample sample;
+  while (r.Next(&sample)) {
+    ASSERT_TRUE(sample.voltage_V == 2.0 || sample.voltage_V == 5.0 || sample.voltage_V == 8.0);
+    while (dwell + 1 < p.dwells.size() && p.dwells[dwell + 1].start_s <= sample.t_s) ++dwell;
+    ASSERT_EQ(sample.voltage_V, p.dwells[dwell].level_V) << sample.t_s;
+    ASSERT_NEAR(sample.deflection_mm, 2.0 * sample.voltage_V, 1e-12);
+  }
+}
+
+TEST(Protocol, SweepAndRandomErrorsAreOneClearLine) {
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"sweep", "protocol \"sweep\": missing key \"level\""},
+      {"sweep:level=5,frequencies=0.1/0",
+       "protocol \"sweep:level=5,frequencies=0.1/0\": frequencies must all be > 0 Hz (got 0)"},
+      {"sweep:level=5,frequencies=-1",
+       "protocol \"sweep:level=5,frequencies=-1\": frequencies must all be > 0 Hz (got -1)"},
+      {"sweep:level=5,frequencies=0.1/x",
+       "protocol \"sweep:level=5,frequencies=0.1/x\": frequencies is not a list of finite "
+       "numbers separated by '/': \"0.1/x\""},
+      {"sweep:level=5,cycles=0",
+       "protocol \"sweep:level=5,cycles=0\": cycles must be a positive whole number (got \"0\")"},
+      {"sweep:level=5,duty=1",
+       "protocol \"sweep:level=5,duty=1\": duty must be > 0 and < 1 (got 1)"},
+      {"sweep:level=5,period=3",
+       "protocol \"sweep:level=5,period=3\": unknown key \"period\" (sweep takes level, "
+       "frequencies, cycles and duty)"},
+      {"sweep:level=5,frequencies=1e-308",
+       "protocol \"sweep:level=5,frequencies=1e-308\": the protocol is too long"},
+      {"random:dwell_min=1,dwell_max=2,duration=10",
+       "protocol \"random:dwell_min=1,dwell_max=2,duration=10\": missing key \"levels\""},
+      {"random:levels=1/2,dwell_max=2,duration=10",
+       "protocol \"random:levels=1/2,dwell_max=2,duration=10\": missing key \"dwell_min\""},
+      {"random:levels=1/2,dwell_min=1,duration=10",
+       "protocol \"random:levels=1/2,dwell_min=1,duration=10\": missing key \"dwell_max\""},
+      {"random:levels=1/2,dwell_min=1,dwell_max=2",
+       "protocol \"random:levels=1/2,dwell_min=1,dwell_max=2\": missing key \"duration\""},
+      {"random:levels=1/2,dwell_min=0,dwell_max=2,duration=10",
+       "protocol \"random:levels=1/2,dwell_min=0,dwell_max=2,duration=10\": dwell_min must be > "
+       "0 s (got 0)"},
+      {"random:levels=1/2,dwell_min=5,dwell_max=2,duration=10",
+       "protocol \"random:levels=1/2,dwell_min=5,dwell_max=2,duration=10\": dwell_max must be >= "
+       "dwell_min (got 2 < 5)"},
+      {"random:levels=1/2,dwell_min=1,dwell_max=2,duration=-10",
+       "protocol \"random:levels=1/2,dwell_min=1,dwell_max=2,duration=-10\": duration must be > "
+       "0 s (got -10)"},
+      {"random:levels=1/2,dwell_min=1,dwell_max=2,duration=10,seed=-1",
+       "protocol \"random:levels=1/2,dwell_min=1,dwell_max=2,duration=10,seed=-1\": seed must be "
+       "a whole number >= 0 (got \"-1\")"},
+      {"random:levels=1/2,dwell_min=1,dwell_max=2,duration=10,seed=1.5",
+       "protocol \"random:levels=1/2,dwell_min=1,dwell_max=2,duration=10,seed=1.5\": seed must "
+       "be a whole number >= 0 (got \"1.5\")"},
+      {"random:levels=1/2,dwell_min=1,dwell_max=2,duration=10,dwell=1",
+       "protocol \"random:levels=1/2,dwell_min=1,dwell_max=2,duration=10,dwell=1\": unknown key "
+       "\"dwell\" (random takes levels, dwell_min, dwell_max, duration and seed)"},
+      {"random:levels=1/2,dwell_min=1,dwell_max=2,duration=1e7",
+       "protocol \"random:levels=1/2,dwell_min=1,dwell_max=2,duration=1e7\": duration / "
+       "dwell_min must be < 10000000 (the schedule is computed in advance)"},
+  };
+  for (const auto& [spec, message] : cases) EXPECT_EQ(ProtocolError(spec), message) << spec;
+  // The largest seed is a seed like any other.
+  EXPECT_EQ(ParseProtocol("random:levels=1,dwell_min=1,dwell_max=1,duration=2,"
+                          "seed=18446744073709551615")
+                .seed,
+            UINT64_MAX);
+}
+
+// ---------------------------------------------------------------------------------------
+// Several actuators
+// ---------------------------------------------------------------------------------------
+
+TEST(Actuators, AnEffectForOneActuatorIsWrittenIdSlashName) {
+  const rig::ActuatorEffect everyone = rig::ParseActuatorEffect("back_relaxation:tau=60");
+  EXPECT_EQ(everyone.actuator_id, "");
+  EXPECT_EQ(everyone.effect, "back_relaxation:tau=60");
+  const rig::ActuatorEffect one = rig::ParseActuatorEffect("S2/back_relaxation:fraction=0.3");
+  EXPECT_EQ(one.actuator_id, "S2");
+  EXPECT_EQ(one.effect, "back_relaxation:fraction=0.3");
+  EXPECT_EQ(rig::ParseActuatorEffect("S2/dead_zone").effect, "dead_zone");
+  EXPECT_EQ(ErrorOf([] { rig::ParseActuatorEffect("/dead_zone"); }),
+            "effect \"/dead_zone\": empty actuator id before '/' (expected ID/NAME[:k=v,...])");
+}
+
+// The streams of MakeActuatorRigs against single Rigs built by hand: actuator i has seed +
+// i and the effects meant for it, in the order given.
+TEST(Actuators, EachActuatorHasItsOwnNoiseAndItsOwnEffects) {
+  const model::TsModel model = model::SeedTsModel();
+  const std::string protocol = "square:level=5,period=100,cycles=2";
+  rig::RigOptions options;
+  options.noise_mm = 0.05;
+  options.seed = 10;
+  std::vector<rig::Rig> rigs = rig::MakeActuatorRigs(
+      model, ParseProtocol(protocol), {"S1", "S2", "S3"},
+      {"sensor_drift:rate=0.001", "S2/back_relaxation:fraction=0.3,tau=60"}, options);
+  ASSERT_EQ(rigs.size(), 3u);
+  auto single = [&](uint64_t seed, const std::vector<std::string>& effect_specs) {
+    std::vector<std::unique_ptr<rig::Effect>> effects;
+    for (const std::string& spec : effect_specs) effects.push_back(ParseEffect(spec));
+    rig::RigOptions own = options;
+    own.seed = seed;
+    return RunStream(model, protocol, std::move(effects), own);
+  };
+  const std::vector<std::vector<rig::RigSample>> expected = {
+      single(10, {"sensor_drift:rate=0.001"}),
+      single(11, {"sensor_drift:rate=0.001", "back_relaxation:fraction=0.3,tau=60"}),
+      single(12, {"sensor_drift:rate=0.001"})};
+  for (size_t i = 0; i < 3; ++i) {
+    const std::vector<rig::RigSample> stream = Drain(rigs[i]);
+    ASSERT_EQ(stream.size(), 2000u);
+    for (size_t k = 0; k < stream.size(); ++k) {
+      ASSERT_EQ(stream[k].voltage_V, expected[i][k].voltage_V) << i << " " << k;
+      ASSERT_EQ(stream[k].deflection_mm, expected[i][k].deflection_mm) << i << " " << k;
+    }
+  }
+}
+
+TEST(Actuators, NoiseStreamsAreIndependent) {
+  const model::TsModel model = model::SeedTsModel();
+  const Protocol protocol = ParseProtocol("hold:level=3,duration=300");
+  rig::RigOptions options;
+  options.noise_mm = 0.05;
+  std::vector<rig::Rig> rigs = rig::MakeActuatorRigs(model, protocol, {"A", "B"}, {}, options);
+  const auto a = Drain(rigs[0]);
+  const auto b = Drain(rigs[1]);
+  const auto clean = RunStream(model, "hold:level=3,duration=300");
+  ASSERT_EQ(a.size(), 3000u);
+  ASSERT_EQ(b.size(), 3000u);
+  double sum_ab = 0.0, sum_aa = 0.0, sum_bb = 0.0;
+  int equal = 0;
+  for (size_t k = 0; k < a.size(); ++k) {
+    const double noise_a = a[k].deflection_mm - clean[k].deflection_mm;
+    const double noise_b = b[k].deflection_mm - clean[k].deflection_mm;
+    equal += noise_a == noise_b ? 1 : 0;
+    sum_ab += noise_a * noise_b;
+    sum_aa += noise_a * noise_a;
+    sum_bb += noise_b * noise_b;
+  }
+  EXPECT_EQ(equal, 0);
+  // Independent: correlation ~ N(0, 1 / 3000), sd 0.018; the bound is about 4.4 sd. The
+  // same stream would give 1.
+  EXPECT_LT(std::abs(sum_ab / std::sqrt(sum_aa * sum_bb)), 0.08);
+  EXPECT_NEAR(std::sqrt(sum_bb / 3000.0), 0.05, 0.05 * 0.06);
+}
+
+TEST(Actuators, AnEffectForOneActuatorLeavesTheOthersAlone) {
+  const model::TsModel model = model::SeedTsModel();
+  const Protocol protocol = ParseProtocol("step:level=2,duration=3000");
+  std::vector<rig::Rig> rigs = rig::MakeActuatorRigs(
+      model, protocol, {"S1", "S2", "S3"}, {"S2/back_relaxation:fraction=0.3,tau=60"}, {});
+  const auto s1 = Drain(rigs[0]);
+  const auto s2 = Drain(rigs[1]);
+  const auto s3 = Drain(rigs[2]);
+  const auto plain = RunStream(model, "step:level=2,duration=3000");
+  for (size_t k = 0; k < plain.size(); ++k) {
+    ASSERT_EQ(s1[k].deflection_mm, plain[k].deflection_mm) << k;
+    ASSERT_EQ(s3[k].deflection_mm, plain[k].deflection_mm) << k;
+    ASSERT_EQ(s2[k].voltage_V, plain[k].voltage_V) << k;
+  }
+  // S2 relaxed to 70 % (see BackRelaxationSettlesAtItsShareOfTheSeedModel).
+  const double model_mm = plain.back().deflection_mm;
+  ASSERT_GT(std::abs(model_mm), 1.0);
+  EXPECT_NEAR(s2.back().deflection_mm, 0.7 * model_mm, 1e-9 * std::abs(model_mm));
+}
+
+TEST(Actuators, AnEffectForAnUnknownActuatorIsRejected) {
+  const Protocol protocol = ParseProtocol("hold:level=1,duration=1");
+  EXPECT_EQ(ErrorOf([&] {
+              rig::MakeActuatorRigs(GainModel(), protocol, {"S1", "S2"},
+                                    {"dead_zone", "S3/back_relaxation:tau=60"}, {});
+            }),
+            "effect \"S3/back_relaxation:tau=60\": no actuator \"S3\" (actuators: S1, S2)");
+  EXPECT_EQ(
+      ErrorOf([&] { rig::MakeActuatorRigs(GainModel(), protocol, {""}, {"S1/dead_zone"}, {}); }),
+      "effect \"S1/dead_zone\": no actuator \"S1\" (no --actuator given)");
+  EXPECT_EQ(ErrorOf([&] {
+              rig::MakeActuatorRigs(GainModel(), protocol, {"S1"}, {"S1/dead_zone:level=3"}, {});
+            }),
+            "effect \"dead_zone:level=3\": unknown key \"level\" (dead_zone takes threshold)");
+  // The sample limit counts every actuator: 4 x 3e6 samples.
+  EXPECT_EQ(ErrorOf([&] {
+              rig::MakeActuatorRigs(GainModel(), ParseProtocol("hold:level=1,duration=3e5"),
+                                    {"A", "B", "C", "D"}, {}, {});
+            }),
+            "4 actuators of 3000000 samples each need 1.2e+07 samples; at most 10000000 in all "
+            "(fewer actuators, lower --rate-hz or a shorter protocol)");
+}
+
+// ---------------------------------------------------------------------------------------
 // The runner
 // ---------------------------------------------------------------------------------------
 
@@ -874,6 +1285,104 @@ TEST(Runner, CountsMessagesTheBusRefused) {
   EXPECT_EQ(summary.deflection_messages, 0);
   EXPECT_EQ(summary.failed_messages, 10);
   EXPECT_NE(rig::SummaryLine(summary).find(", 10 failed to send"), std::string::npos);
+}
+
+// Two actuators into one log, tagged: the order across actuators is what RunRigs promises.
+class TaggedSink : public rig::BusSink {
+ public:
+  TaggedSink(char tag, std::vector<std::pair<char, Recorded>>* log) : tag_(tag), log_(log) {}
+  bool PublishVoltage(int64_t utime, double voltage_V) override {
+    log_->push_back({tag_, {'V', utime, voltage_V}});
+    return true;
+  }
+  bool PublishDeflection(int64_t utime, double deflection_mm) override {
+    log_->push_back({tag_, {'D', utime, deflection_mm}});
+    return true;
+  }
+  bool PublishTrialControl(int64_t utime, rig::TrialAction action, const std::string&) override {
+    log_->push_back({tag_, {action == rig::TrialAction::kStart ? 'S' : 'E', utime, 0.0}});
+    return true;
+  }
+
+ private:
+  char tag_;
+  std::vector<std::pair<char, Recorded>>* log_;
+};
+
+TEST(Runner, SeveralActuatorsAdvanceTogetherInMessageTime) {
+  std::vector<rig::Rig> rigs =
+      rig::MakeActuatorRigs(GainModel(), ParseProtocol("step:level=3,duration=2,delay=1.05"),
+                            {"A", "B"}, {"B/dead_zone:threshold=1"}, StartingAt(1'000'000));
+  std::vector<std::pair<char, Recorded>> log;
+  TaggedSink a('A', &log), b('B', &log);
+  const rig::RunSummary summary =
+      rig::RunRigs({{.rig = &rigs[0], .sink = &a}, {.rig = &rigs[1], .sink = &b}},
+                   {.speed = 0.0, .trial_control = true});
+  EXPECT_EQ(summary.actuators, 2);
+  EXPECT_EQ(summary.samples, 31);
+  EXPECT_EQ(summary.deflection_messages, 62);
+  EXPECT_EQ(summary.voltage_messages, 8);
+  EXPECT_EQ(summary.trial_messages, 4);
+  EXPECT_EQ(summary.final_utime, 4'000'000);
+  ASSERT_EQ(log.size(), 62u + 8u + 4u);
+  // Both trial starts first, both stops last.
+  EXPECT_EQ(log[0].first, 'A');
+  EXPECT_EQ(log[0].second.kind, 'S');
+  EXPECT_EQ(log[1].first, 'B');
+  EXPECT_EQ(log[1].second.kind, 'S');
+  EXPECT_EQ(log[log.size() - 2].first, 'A');
+  EXPECT_EQ(log[log.size() - 2].second.kind, 'E');
+  EXPECT_EQ(log.back().first, 'B');
+  EXPECT_EQ(log.back().second.kind, 'E');
+  EXPECT_EQ(log.back().second.utime, 4'100'000);
+  // Deflections alternate A, B with the same utime, never going back in time.
+  std::vector<std::pair<char, Recorded>> deflections;
+  for (const auto& entry : log)
+    if (entry.second.kind == 'D') deflections.push_back(entry);
+  ASSERT_EQ(deflections.size(), 62u);
+  for (size_t k = 0; k < 31; ++k) {
+    const int64_t utime = 1'000'000 + static_cast<int64_t>(k) * 100'000;
+    EXPECT_EQ(deflections[2 * k].first, 'A');
+    EXPECT_EQ(deflections[2 * k + 1].first, 'B');
+    EXPECT_EQ(deflections[2 * k].second.utime, utime);
+    EXPECT_EQ(deflections[2 * k + 1].second.utime, utime);
+    // B's dead zone of 1 V: 2 mm/V * (3 - 1) V once the step is on, A the full 6 mm.
+    const double a_mm = k >= 11 ? 6.0 : 0.0;
+    EXPECT_NEAR(deflections[2 * k].second.value, a_mm, 1e-12) << k;
+    EXPECT_NEAR(deflections[2 * k + 1].second.value, a_mm * 2.0 / 3.0, 1e-12) << k;
+  }
+  EXPECT_EQ(rig::SummaryLine(summary).rfind(
+                "published 31 samples for each of 2 actuators (62 deflection, 8 voltage, 4 "
+                "trial-control messages) covering 3.1 s of message time in ",
+                0),
+            0u)
+      << rig::SummaryLine(summary);
+}
+
+TEST(Runner, SeveralActuatorsArePacedAsOne) {
+  // 20 samples over 2 s at 20 x, for 3 actuators: still 1.9 / 20 = 95 ms, not 3 times it.
+  std::vector<rig::Rig> rigs = rig::MakeActuatorRigs(
+      GainModel(), ParseProtocol("hold:level=1,duration=2"), {"A", "B", "C"}, {}, StartingAt(0));
+  RecordingSink a, b, c;
+  const rig::RunSummary summary = rig::RunRigs(
+      {{.rig = &rigs[0], .sink = &a}, {.rig = &rigs[1], .sink = &b}, {.rig = &rigs[2], .sink = &c}},
+      {.speed = 20.0});
+  EXPECT_EQ(summary.samples, 20);
+  EXPECT_EQ(summary.deflection_messages, 60);
+  EXPECT_GE(summary.wall_s, 0.095);
+  EXPECT_LT(summary.wall_s, 0.095 * 2 + 1.0);
+  EXPECT_EQ(a.messages.size(), b.messages.size());
+  EXPECT_EQ(c.messages.size(), 20u + 2u);  // 20 deflections, voltage at 0 s and 1 s
+}
+
+TEST(Runner, RigsThatDoNotAgreeCannotRunTogether) {
+  rig::Rig one(GainModel(), ParseProtocol("hold:level=1,duration=1"), {}, StartingAt(0));
+  rig::Rig two(GainModel(), ParseProtocol("hold:level=1,duration=2"), {}, StartingAt(0));
+  RecordingSink a, b;
+  EXPECT_THROW(rig::RunRigs({{.rig = &one, .sink = &a}, {.rig = &two, .sink = &b}}, {}),
+               std::invalid_argument);
+  EXPECT_THROW(rig::RunRigs({}, {}), std::invalid_argument);
+  EXPECT_TRUE(a.messages.empty());
 }
 
 // ---------------------------------------------------------------------------------------
@@ -1010,6 +1519,21 @@ TEST_F(RigBinary, BadUsageIsOneLineAndExitTwo) {
            " --protocol hold:level=1,duration=1 --effect "
            "hysteresis:width=-1",
        "flexid-rig: effect \"hysteresis:width=-1\": width must be >= 0 mm (got -1)\n"},
+      {bus + ",S2 --actuator S1 --protocol hold:level=1,duration=1",
+       "flexid-rig: --actuator \"S1\" given twice\n"},
+      {bus + ",S2 --protocol hold:level=1,duration=1 --effect S3/dead_zone",
+       "flexid-rig: effect \"S3/dead_zone\": no actuator \"S3\" (actuators: S1, S2)\n"},
+      {" --out " + scratch_.File("x.csv") +
+           " --protocol hold:level=1,duration=1 --effect "
+           "S1/dead_zone",
+       "flexid-rig: effect \"S1/dead_zone\": no actuator \"S1\" (no --actuator given)\n"},
+      {bus + " --protocol sweep:level=5 --rate-hz 4",
+       "flexid-rig: protocol \"sweep:level=5\": at 1.1 Hz the shorter part of a period "
+       "(0.454545 s at duty 0.5) is under 2 sample periods (0.5 s at 4 Hz); raise --rate-hz to "
+       "at least 4.4 or leave 1.1 Hz out\n"},
+      {bus + " --protocol random:levels=1/2,dwell_min=3,dwell_max=2,duration=9",
+       "flexid-rig: protocol \"random:levels=1/2,dwell_min=3,dwell_max=2,duration=9\": "
+       "dwell_max must be >= dwell_min (got 2 < 3)\n"},
   };
   for (const auto& [args, message] : cases) {
     const auto r = Run(args);
@@ -1079,6 +1603,150 @@ TEST_F(RigBinary, OfflineNoiseIsSeededWithSeedOneByDefault) {
   ASSERT_EQ(clean.deflection_mm.size(), expected.size());
   for (size_t k = 0; k < expected.size(); ++k)
     ASSERT_EQ(clean.deflection_mm[k], expected[k].deflection_mm) << k;
+}
+
+// Reads the CSV of several actuators: header and rows as text fields.
+std::vector<std::vector<std::string>> ReadCsvRows(const std::string& path) {
+  std::ifstream in(path);
+  std::vector<std::vector<std::string>> rows;
+  std::string line;
+  while (std::getline(in, line)) {
+    std::vector<std::string> fields;
+    std::stringstream fields_in(line);
+    std::string field;
+    while (std::getline(fields_in, field, ',')) fields.push_back(field);
+    rows.push_back(fields);
+  }
+  return rows;
+}
+
+// Offline, three actuators: one row per actuator and sample in time order; each
+// actuator's rows are the stream of a single rig with seed + i and its own effects.
+TEST_F(RigBinary, OfflineSeveralActuatorsGetAnActuatorColumn) {
+  const std::string path = scratch_.File("three.csv");
+  const std::string protocol = "sweep:level=5,frequencies=0.1/0.5,cycles=2";
+  const auto r = Run("--out " + path + " --actuator S1,S2 --actuator S3 --protocol " + protocol +
+                     " --noise-mm 0.02 --seed 7 --effect hysteresis:width=0.05 "
+                     "--effect S2/back_relaxation:fraction=0.3,tau=60");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(r.err, "");
+  EXPECT_EQ(r.out,
+            "wrote 720 rows (240 samples for each of 3 actuators, 0 .. 23.9 s) to " + path + "\n");
+  const auto rows = ReadCsvRows(path);
+  ASSERT_EQ(rows.size(), 721u);
+  EXPECT_EQ(rows[0], (std::vector<std::string>{"actuator", "t_s", "voltage_V", "deflection_mm"}));
+  const std::vector<std::string> ids = {"S1", "S2", "S3"};
+  const std::vector<std::vector<rig::RigSample>> expected = {
+      ExpectedStream(protocol, {"hysteresis:width=0.05"}, 0.02, 7),
+      ExpectedStream(protocol, {"hysteresis:width=0.05", "back_relaxation:fraction=0.3,tau=60"},
+                     0.02, 8),
+      ExpectedStream(protocol, {"hysteresis:width=0.05"}, 0.02, 9)};
+  for (size_t k = 0; k < 240; ++k)
+    for (size_t i = 0; i < 3; ++i) {
+      const std::vector<std::string>& row = rows[1 + 3 * k + i];
+      ASSERT_EQ(row.size(), 4u);
+      ASSERT_EQ(row[0], ids[i]) << k;
+      ASSERT_EQ(std::stod(row[1]), expected[i][k].t_s) << k;
+      ASSERT_EQ(std::stod(row[2]), expected[i][k].voltage_V) << k;
+      ASSERT_EQ(std::stod(row[3]), expected[i][k].deflection_mm) << i << " " << k;
+    }
+  EXPECT_NE(expected[0][100].deflection_mm, expected[2][100].deflection_mm);  // own noise
+  // Not a recording CSV: time repeats, and the reader says so.
+  EXPECT_THROW(model::ReadRecordingCsv(path), model::InputError);
+}
+
+// One --actuator offline: the plain recording CSV, the same as without --actuator, and an
+// effect for that actuator acts.
+TEST_F(RigBinary, OfflineOneActuatorIsAPlainRecording) {
+  const std::string protocol =
+      " --protocol random:levels=2/4/8,dwell_min=1,dwell_max=3,duration=30";
+  ASSERT_EQ(Run("--out " + scratch_.File("plain.csv") + protocol + " --effect dead_zone").exit_code,
+            0);
+  const auto r = Run("--out " + scratch_.File("one.csv") + " --actuator S7" + protocol +
+                     " --effect S7/dead_zone");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(r.out, "wrote 300 samples (0 .. 29.9 s) to " + scratch_.File("one.csv") + "\n");
+  const model::Recording plain = model::ReadRecordingCsv(scratch_.File("plain.csv"));
+  const model::Recording one = model::ReadRecordingCsv(scratch_.File("one.csv"));
+  EXPECT_EQ(one.voltage_V, plain.voltage_V);
+  EXPECT_EQ(one.deflection_mm, plain.deflection_mm);
+  const auto expected = ExpectedStream("random:levels=2/4/8,dwell_min=1,dwell_max=3,duration=30",
+                                       {"dead_zone"}, 0.0, 1);
+  ASSERT_EQ(one.deflection_mm.size(), expected.size());
+  for (size_t k = 0; k < expected.size(); ++k)
+    ASSERT_EQ(one.deflection_mm[k], expected[k].deflection_mm) << k;
+}
+
+struct ChannelCounter {
+  void OnVoltage(const lcm::ReceiveBuffer*, const std::string& channel,
+                 const flexid::voltage_sample_t* message) {
+    ++voltages[channel];
+    ids_ok = ids_ok && channel == "FLEXID/" + message->actuator_id + "/VOLTAGE";
+    Touch();
+  }
+  void OnDeflection(const lcm::ReceiveBuffer*, const std::string& channel,
+                    const flexid::deflection_sample_t* message) {
+    deflections[channel].push_back(message->utime);
+    ids_ok = ids_ok && channel == "FLEXID/" + message->actuator_id + "/DEFLECTION";
+    Touch();
+  }
+  void OnTrial(const lcm::ReceiveBuffer*, const std::string&,
+               const flexid::trial_control_t* message) {
+    trials.push_back(message->actuator_id +
+                     (message->action == flexid::trial_control_t::kStart ? ":start" : ":stop"));
+    Touch();
+  }
+  void Touch() { last_message = std::chrono::steady_clock::now(); }
+
+  std::map<std::string, int> voltages;
+  std::map<std::string, std::vector<int64_t>> deflections;
+  std::vector<std::string> trials;
+  bool ids_ok = true;
+  std::chrono::steady_clock::time_point last_message = std::chrono::steady_clock::now();
+};
+
+TEST_F(RigBinary, SeveralActuatorsPublishOnTheirOwnChannels) {
+  const std::string url = RandomUdpmUrl();
+  lcm::LCM lcm(url);
+  if (!lcm.good()) GTEST_SKIP() << "cannot open LCM on " << url << " (no multicast route?)";
+  ChannelCounter counter;
+  for (lcm::Subscription* subscription :
+       {lcm.subscribe("FLEXID/.*/VOLTAGE", &ChannelCounter::OnVoltage, &counter),
+        lcm.subscribe("FLEXID/.*/DEFLECTION", &ChannelCounter::OnDeflection, &counter),
+        lcm.subscribe("FLEXID/TRIAL", &ChannelCounter::OnTrial, &counter)})
+    subscription->setQueueCapacity(100000);
+  lcm.getFileno();
+
+  testing::ProcessResult result;
+  std::atomic<bool> done{false};
+  std::thread rig([&] {
+    result = Run("--lcm '" + url +
+                 "' --actuator M1,M2 --protocol sweep:level=3,frequencies=0.5,cycles=2 "
+                 "--speed 0 --start-utime 2000000 --trial-control --noise-mm 0.01 "
+                 "--effect M2/dead_zone");
+    done = true;
+  });
+  while (!done ||
+         std::chrono::steady_clock::now() - counter.last_message < std::chrono::milliseconds(500))
+    lcm.handleTimeout(50);
+  rig.join();
+
+  ASSERT_EQ(result.exit_code, 0) << result.err;
+  EXPECT_EQ(result.out.rfind("published 40 samples for each of 2 actuators (80 deflection, ", 0),
+            0u)
+      << result.out;
+  EXPECT_TRUE(counter.ids_ok);
+  ASSERT_EQ(counter.deflections.size(), 2u);
+  for (const std::string id : {"M1", "M2"}) {
+    const std::vector<int64_t>& utimes = counter.deflections["FLEXID/" + id + "/DEFLECTION"];
+    ASSERT_EQ(utimes.size(), 40u) << id;
+    for (size_t k = 0; k < 40; ++k)
+      EXPECT_EQ(utimes[k], 2'000'000 + static_cast<int64_t>(k) * 100'000);
+    // Changes at 0, 1, 2, 3 s; nothing else needs repeating within a second.
+    EXPECT_EQ(counter.voltages["FLEXID/" + id + "/VOLTAGE"], 4) << id;
+  }
+  EXPECT_EQ(counter.trials,
+            (std::vector<std::string>{"M1:start", "M2:start", "M1:stop", "M2:stop"}));
 }
 
 TEST_F(RigBinary, OfflineWithAModelFile) {

@@ -39,6 +39,8 @@ Rig::Rig(const model::TsModel& model, Protocol protocol,
       generator_(options.seed) {
   std::string why;
   if (!options_.IsValid(&why)) throw model::InputError(why);
+  why = SamplingProblem(protocol_, options_.rate_Hz);
+  if (!why.empty()) throw model::InputError("protocol \"" + protocol_.text + "\": " + why);
   const double duration_s = ProtocolDuration(protocol_);
   const double exact_count = duration_s * options_.rate_Hz;
   // A count that is whole up to rounding (10 s at 10 Hz) is not rounded up.
@@ -114,6 +116,57 @@ double Rig::StandardNormal() {
   spare_normal_ = radius * std::sin(angle);
   has_spare_normal_ = true;
   return radius * std::cos(angle);
+}
+
+ActuatorEffect ParseActuatorEffect(std::string_view text) {
+  const std::string_view name = text.substr(0, text.find(':'));
+  const size_t slash = name.find('/');
+  if (slash == std::string_view::npos) return {"", std::string(text)};
+  if (slash == 0)
+    throw model::InputError("effect \"" + std::string(text) +
+                            "\": empty actuator id before '/' (expected ID/NAME[:k=v,...])");
+  return {std::string(text.substr(0, slash)), std::string(text.substr(slash + 1))};
+}
+
+std::vector<Rig> MakeActuatorRigs(const model::TsModel& model, const Protocol& protocol,
+                                  const std::vector<std::string>& actuator_ids,
+                                  const std::vector<std::string>& effect_specs,
+                                  const RigOptions& options) {
+  std::vector<ActuatorEffect> effects;
+  for (const std::string& spec : effect_specs) {
+    effects.push_back(ParseActuatorEffect(spec));
+    const std::string& id = effects.back().actuator_id;
+    if (id.empty() || std::find(actuator_ids.begin(), actuator_ids.end(), id) != actuator_ids.end())
+      continue;
+    std::string known;  // an offline run without --actuator has one actuator named ""
+    for (const std::string& actuator : actuator_ids)
+      if (!actuator.empty()) known += (known.empty() ? "" : ", ") + actuator;
+    throw model::InputError(
+        "effect \"" + spec + "\": no actuator \"" + id + "\" (" +
+        (known.empty() ? std::string("no --actuator given") : "actuators: " + known) + ")");
+  }
+  std::vector<Rig> rigs;
+  rigs.reserve(actuator_ids.size());
+  for (size_t i = 0; i < actuator_ids.size(); ++i) {
+    std::vector<std::unique_ptr<Effect>> own;
+    for (const ActuatorEffect& effect : effects)
+      if (effect.actuator_id.empty() || effect.actuator_id == actuator_ids[i])
+        own.push_back(ParseEffect(effect.effect));
+    RigOptions own_options = options;
+    own_options.seed = options.seed + i;
+    rigs.emplace_back(model, protocol, std::move(own), own_options);
+    if (i > 0) continue;
+    const double total =
+        static_cast<double>(rigs.front().sample_count()) * static_cast<double>(actuator_ids.size());
+    if (total > static_cast<double>(kMaxRigSamples)) {
+      std::ostringstream text;
+      text << actuator_ids.size() << " actuators of " << rigs.front().sample_count()
+           << " samples each need " << total << " samples; at most " << kMaxRigSamples
+           << " in all (fewer actuators, lower --rate-hz or a shorter protocol)";
+      throw model::InputError(text.str());
+    }
+  }
+  return rigs;
 }
 
 }  // namespace flexid::rig

@@ -17,12 +17,16 @@
 // Noise is white and Gaussian, from std::mt19937_64 seeded with `seed` and the Box-Muller
 // transform written out here, so that a seed gives the same stream with any standard
 // library.
+//
+// Several actuators (flexid-rig --actuator S1,S2): one Rig each, built by MakeActuatorRigs
+// with the same model, protocol and options but their own effects and noise stream.
 #pragma once
 
 #include <cstdint>
 #include <memory>
 #include <random>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "clients/rig/effects.h"
@@ -58,7 +62,8 @@ struct RigSample {
 
 class Rig {
  public:
-  // Throws model::InputError for invalid options or more than kMaxRigSamples samples,
+  // Throws model::InputError for invalid options, a rate too low for the protocol
+  // (SamplingProblem in protocol.h) or more than kMaxRigSamples samples,
   // std::runtime_error if the model's output is not finite (an unstable model), and
   // std::invalid_argument for an invalid model.
   Rig(const model::TsModel& model, Protocol protocol, std::vector<std::unique_ptr<Effect>> effects,
@@ -89,5 +94,26 @@ class Rig {
   bool has_spare_normal_ = false;
   double spare_normal_ = 0.0;
 };
+
+// An --effect of flexid-rig: "NAME[:k=v,...]" for every actuator, or "ID/NAME[:k=v,...]"
+// for actuator ID only (the '/' is looked for before the first ':').
+struct ActuatorEffect {
+  std::string actuator_id;  // empty: every actuator
+  std::string effect;       // NAME[:k=v,...], for ParseEffect
+};
+// Throws model::InputError for an empty ID ("effect \"/dead_zone\": empty actuator id
+// before '/'").
+ActuatorEffect ParseActuatorEffect(std::string_view text);
+
+// One Rig per actuator id, in the order given, all with MODEL, PROTOCOL and OPTIONS except
+// the noise seed: actuator i (from 0) gets options.seed + i (so a single actuator's stream
+// is the one a plain Rig with options.seed gives). Each actuator gets its own instances of
+// the effects meant for it (EFFECT_SPECS without an ID, and those with its ID), in the order
+// given. Throws model::InputError for an effect whose ID is not among ACTUATOR_IDS, more
+// than kMaxRigSamples samples over all actuators, and as ParseEffect and Rig.
+std::vector<Rig> MakeActuatorRigs(const model::TsModel& model, const Protocol& protocol,
+                                  const std::vector<std::string>& actuator_ids,
+                                  const std::vector<std::string>& effect_specs,
+                                  const RigOptions& options);
 
 }  // namespace flexid::rig

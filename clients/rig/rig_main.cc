@@ -1,10 +1,11 @@
 // flexid-rig: a virtual actuator on the bus (DESIGN.md, "Command lines"), or offline.
 //
-//   flexid-rig --lcm URL --actuator ID --protocol SPEC [--speed X] [--rate-hz 10]
-//              [--model MODEL.json] [--effect NAME[:k=v,...]]... [--noise-mm SIGMA]
+//   flexid-rig --lcm URL --actuator ID[,ID...]... --protocol SPEC [--speed X] [--rate-hz 10]
+//              [--model MODEL.json] [--effect [ID/]NAME[:k=v,...]]... [--noise-mm SIGMA]
 //              [--seed N] [--start-utime U] [--trial-control]
-//   flexid-rig --out FILE.csv --protocol SPEC [--rate-hz 10] [--model MODEL.json]
-//              [--effect NAME[:k=v,...]]... [--noise-mm SIGMA] [--seed N]
+//   flexid-rig --out FILE.csv [--actuator ID[,ID...]]... --protocol SPEC [--rate-hz 10]
+//              [--model MODEL.json] [--effect [ID/]NAME[:k=v,...]]... [--noise-mm SIGMA]
+//              [--seed N]
 //
 // Simulates the actuator's deflection for a voltage protocol (protocol.h) with the seed's
 // T-S model or a model file, adds effects (effects.h) and sensor noise (rig.h), and
@@ -12,10 +13,19 @@
 // on FLEXID/<ID>/DEFLECTION in message time (runner.h); with --trial-control also
 // flexid::trial_control_t start and stop on FLEXID/TRIAL.
 //
+// Several actuators: --actuator may be repeated or hold a comma-separated list. Every
+// actuator plays the same protocol on its own channels, with its own noise stream (seed +
+// i for the i-th actuator, from 0) and its own trial start and stop; all advance together
+// in message time (RunRigs). --effect NAME[:k=v,...] acts on every actuator, --effect
+// ID/NAME[:k=v,...] on actuator ID only (MakeActuatorRigs).
+//
 // Offline (--out): the same sample stream (the same seed gives the same noise) is written at
 // once, without the bus and without pacing, as a recording CSV t_s,voltage_V,deflection_mm
-// (model/recording.h) with t_s = k / rate_Hz from 0. The bus options (--lcm, --actuator,
-// --speed, --start-utime, --trial-control) are rejected with --out.
+// (model/recording.h) with t_s = k / rate_Hz from 0. With two or more actuators the file
+// has a first column `actuator` (actuator,t_s,voltage_V,deflection_mm), one row per
+// actuator and sample, in time order and the actuators in the order given within a time;
+// such a file is not a recording CSV (its time repeats): select one actuator's rows first.
+// The bus options (--lcm, --speed, --start-utime, --trial-control) are rejected with --out.
 //
 // Prints one summary line on stdout. Errors are one line on stderr; exit 0 success, 1 the
 // run failed (bus, unstable model, a message not sent, the file not written, interrupted by
@@ -24,11 +34,16 @@
 
 #include <CLI/CLI.hpp>
 #include <atomic>
+#include <cerrno>
+#include <charconv>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
+#include <cstring>
 #include <flexid/deflection_sample_t.hpp>
 #include <flexid/trial_control_t.hpp>
 #include <flexid/voltage_sample_t.hpp>
+#include <fstream>
 #include <iostream>
 #include <lcm/lcm-cpp.hpp>
 #include <memory>
@@ -60,7 +75,7 @@ struct RigArgs {
   std::string out_path;                        // offline: the recording CSV; empty: on the bus
   std::vector<std::string> bus_options_given;  // bus-only flags given, e.g. "--lcm"
   std::string lcm_url;
-  std::string actuator_id;
+  std::vector<std::string> actuator_ids;  // as given; "S1,S2" is split by CLI11
   std::string protocol;
   double speed = 1.0;
   double rate_Hz = 10.0;
@@ -130,10 +145,45 @@ int64_t WallClockUtime() {
       .count();
 }
 
-std::vector<std::unique_ptr<Effect>> ParseEffects(const std::vector<std::string>& specs) {
-  std::vector<std::unique_ptr<Effect>> effects;
-  for (const std::string& spec : specs) effects.push_back(ParseEffect(spec));
-  return effects;
+// Checks the ids (each valid, none twice); throws UsageError.
+void CheckActuatorIds(const std::vector<std::string>& ids) {
+  for (size_t i = 0; i < ids.size(); ++i) {
+    if (!IsValidActuatorId(ids[i]))
+      throw UsageError("--actuator must be 1 to 64 of A-Z a-z 0-9 _ - (got \"" + ids[i] + "\")");
+    for (size_t j = 0; j < i; ++j)
+      if (ids[j] == ids[i]) throw UsageError("--actuator \"" + ids[i] + "\" given twice");
+  }
+}
+
+std::string CsvNumber(double value) {
+  char buffer[32];
+  const auto result = std::to_chars(buffer, buffer + sizeof buffer, value);
+  return std::string(buffer, result.ptr);
+}
+
+// Several actuators offline: actuator,t_s,voltage_V,deflection_mm, written to PATH.tmp and
+// renamed over PATH. Returns the rows written; throws OperationError if it cannot write.
+int64_t WriteActuatorsCsv(const std::string& path, const std::vector<std::string>& ids,
+                          std::vector<Rig>& rigs) {
+  const std::string temporary = path + ".tmp";
+  std::ofstream out(temporary, std::ios::binary | std::ios::trunc);
+  if (!out) throw OperationError(path + ": cannot write (" + std::strerror(errno) + ")");
+  out << "actuator,t_s,voltage_V,deflection_mm\n";
+  int64_t rows = 0;
+  RigSample sample;
+  for (int64_t k = 0; k < rigs.front().sample_count(); ++k)
+    for (size_t i = 0; i < rigs.size(); ++i) {
+      rigs[i].Next(&sample);
+      out << ids[i] << ',' << CsvNumber(sample.t_s) << ',' << CsvNumber(sample.voltage_V) << ','
+          << CsvNumber(sample.deflection_mm) << '\n';
+      ++rows;
+    }
+  out.close();
+  if (!out || std::rename(temporary.c_str(), path.c_str()) != 0) {
+    std::remove(temporary.c_str());
+    throw OperationError(path + ": cannot write");
+  }
+  return rows;
 }
 
 model::TsModel LoadModel(const std::string& path) {
@@ -145,8 +195,8 @@ int WriteRecording(const RigArgs& args) {
   if (!args.bus_options_given.empty())
     throw UsageError("--out and " + args.bus_options_given.front() +
                      " cannot be combined (--out writes the recording to a file, without the bus)");
+  CheckActuatorIds(args.actuator_ids);
   const Protocol protocol = ParseProtocol(args.protocol);
-  std::vector<std::unique_ptr<Effect>> effects = ParseEffects(args.effects);
   const model::TsModel model = LoadModel(args.model_path);
   RigOptions options;
   options.rate_Hz = args.rate_Hz;
@@ -154,8 +204,20 @@ int WriteRecording(const RigArgs& args) {
   options.seed = args.seed;
   std::string why;
   if (!options.IsValid(&why)) throw UsageError(why);
-  Rig rig(model, protocol, std::move(effects), options);
+  // Without --actuator: one actuator without a name.
+  const std::vector<std::string> ids =
+      args.actuator_ids.empty() ? std::vector<std::string>{""} : args.actuator_ids;
+  std::vector<Rig> rigs = MakeActuatorRigs(model, protocol, ids, args.effects, options);
 
+  if (rigs.size() > 1) {
+    const int64_t rows = WriteActuatorsCsv(args.out_path, ids, rigs);
+    std::cout << "wrote " << rows << " rows (" << rigs.front().sample_count()
+              << " samples for each of " << rigs.size() << " actuators, 0 .. "
+              << static_cast<double>(rigs.front().sample_count() - 1) / options.rate_Hz << " s) to "
+              << args.out_path << std::endl;
+    return 0;
+  }
+  Rig& rig = rigs.front();
   model::Recording recording;
   const auto n = static_cast<size_t>(rig.sample_count());
   recording.t_s.reserve(n);
@@ -182,15 +244,12 @@ int RunRigCommand(const RigArgs& args) {
   if (!args.out_path.empty()) return WriteRecording(args);
   if (args.lcm_url.empty())
     throw UsageError("--lcm URL (on the bus) or --out FILE.csv is required");
-  if (args.actuator_id.empty()) throw UsageError("--actuator is required with --lcm");
-  if (!IsValidActuatorId(args.actuator_id))
-    throw UsageError("--actuator must be 1 to 64 of A-Z a-z 0-9 _ - (got \"" + args.actuator_id +
-                     "\")");
+  if (args.actuator_ids.empty()) throw UsageError("--actuator is required with --lcm");
+  CheckActuatorIds(args.actuator_ids);
   if (!(args.speed == 0.0 || (args.speed >= 1e-3 && std::isfinite(args.speed))))
     throw UsageError("--speed must be 0 (as fast as possible) or a finite number >= 0.001");
 
   const Protocol protocol = ParseProtocol(args.protocol);
-  std::vector<std::unique_ptr<Effect>> effects = ParseEffects(args.effects);
   const model::TsModel model = LoadModel(args.model_path);
   RigOptions options;
   options.rate_Hz = args.rate_Hz;
@@ -199,11 +258,17 @@ int RunRigCommand(const RigArgs& args) {
   options.seed = args.seed;
   std::string why;
   if (!options.IsValid(&why)) throw UsageError(why);
-  Rig rig(model, protocol, std::move(effects), options);
+  std::vector<Rig> rigs =
+      MakeActuatorRigs(model, protocol, args.actuator_ids, args.effects, options);
 
   lcm::LCM lcm(args.lcm_url);
   if (!lcm.good()) throw OperationError("cannot open the LCM bus [url: " + args.lcm_url + "]");
-  LcmSink sink(lcm, args.actuator_id);
+  std::vector<std::unique_ptr<LcmSink>> sinks;
+  std::vector<ActuatorOnBus> actuators;
+  for (size_t i = 0; i < rigs.size(); ++i) {
+    sinks.push_back(std::make_unique<LcmSink>(lcm, args.actuator_ids[i]));
+    actuators.push_back({.rig = &rigs[i], .sink = sinks.back().get()});
+  }
 
   struct sigaction action = {};
   action.sa_handler = OnStopSignal;
@@ -211,8 +276,8 @@ int RunRigCommand(const RigArgs& args) {
   sigaction(SIGINT, &action, nullptr);
   sigaction(SIGTERM, &action, nullptr);
 
-  const RunSummary summary = RunRig(
-      rig, sink, {.speed = args.speed, .trial_control = args.trial_control}, &stop_requested);
+  const RunSummary summary = RunRigs(
+      actuators, {.speed = args.speed, .trial_control = args.trial_control}, &stop_requested);
   std::cout << SummaryLine(summary) << std::endl;
   if (summary.failed_messages > 0) {
     std::cerr << "flexid-rig: " << summary.failed_messages
@@ -220,8 +285,8 @@ int RunRigCommand(const RigArgs& args) {
     return 1;
   }
   if (summary.interrupted) {
-    std::cerr << "flexid-rig: interrupted after " << summary.samples << " of " << rig.sample_count()
-              << " samples\n";
+    std::cerr << "flexid-rig: interrupted after " << summary.samples << " of "
+              << rigs.front().sample_count() << " samples\n";
     return 1;
   }
   return 0;
@@ -239,15 +304,23 @@ int main(int argc, char** argv) {
   RigArgs args;
   app.add_option("--out", args.out_path,
                  "Offline: write the whole run to this recording CSV (t_s,voltage_V,"
-                 "deflection_mm) at once, without the bus");
+                 "deflection_mm) at once, without the bus; with two or more actuators "
+                 "actuator,t_s,voltage_V,deflection_mm");
   CLI::Option* lcm = app.add_option(
       "--lcm", args.lcm_url, "LCM URL, e.g. udpm://239.255.76.67:7667?ttl=0 (not with --out)");
-  CLI::Option* actuator = app.add_option("--actuator", args.actuator_id,
-                                         "Actuator id, e.g. S1 (names the channels; with --lcm)");
+  app.add_option("--actuator", args.actuator_ids,
+                 "Actuator id, e.g. S1 (names the channels); repeatable or S1,S2: several "
+                 "actuators, same protocol, own noise (seed + i) and channels; with --out and "
+                 "two or more: an actuator column")
+      ->delimiter(',')
+      ->allow_extra_args(false);
   app.add_option("--protocol", args.protocol,
                  "Voltage protocol: step:level=V,duration=S[,delay=S] | "
                  "square:level=V,period=S[,duty=0.5],cycles=N[,polarity=alternate] | "
-                 "staircase:levels=2/4/6/8,dwell=S | hold:level=V,duration=S")
+                 "staircase:levels=2/4/6/8,dwell=S | hold:level=V,duration=S | "
+                 "sweep:level=V[,frequencies=0.0025/0.02/0.031/0.054/0.11/0.15/1.1][,cycles=3]"
+                 "[,duty=0.5] | "
+                 "random:levels=V1/V2/...,dwell_min=S,dwell_max=S,duration=S[,seed=1]")
       ->required();
   CLI::Option* speed =
       app.add_option("--speed", args.speed, "Times faster than real time; 0: as fast as possible")
@@ -257,7 +330,8 @@ int main(int argc, char** argv) {
   app.add_option("--model", args.model_path,
                  "Model file (flexid.model/1 JSON); default: the seed's two-rule T-S model");
   app.add_option("--effect", args.effects,
-                 "Effect NAME[:k=v,...], repeatable: back_relaxation[:fraction=0.3,tau=60] | "
+                 "Effect [ID/]NAME[:k=v,...], repeatable; ID/: on that actuator only: "
+                 "back_relaxation[:fraction=0.3,tau=60] | "
                  "cycle_degradation[:loss=0.2,charge=5000] | hysteresis[:width=0.5] | "
                  "electrolysis_saturation[:onset=4,slope=0.3] | "
                  "sensor_drift[:rate=0.001,warmup=0,tau=600] | polarity_asymmetry[:ratio=0.7] | "
@@ -275,11 +349,16 @@ int main(int argc, char** argv) {
       "    --protocol square:level=5,period=220,cycles=5 --speed 100 --effect back_relaxation\n"
       "  flexid-rig --out square-5V.csv --model examples/seed-8V.json \\\n"
       "    --protocol square:level=5,period=220,cycles=5 --noise-mm 0.02 --seed 7 \\\n"
-      "    --effect hysteresis:width=0.04");
+      "    --effect hysteresis:width=0.04\n"
+      "  flexid-rig --lcm 'udpm://239.255.76.67:7667?ttl=0' --actuator S1,S2 \\\n"
+      "    --protocol sweep:level=5 --speed 20 --noise-mm 0.02 \\\n"
+      "    --effect S2/back_relaxation:fraction=0.3,tau=60\n"
+      "  flexid-rig --out random.csv --protocol "
+      "random:levels=2/4/6/8,dwell_min=20,dwell_max=60,duration=1200,seed=3");
   try {
     app.parse(argc, argv);
     args.start_utime_given = start_utime->count() > 0;
-    for (const CLI::Option* option : {lcm, actuator, speed, start_utime, trial_control})
+    for (const CLI::Option* option : {lcm, speed, start_utime, trial_control})
       if (option->count() > 0) args.bus_options_given.push_back(option->get_name());
     return flexid::rig::RunRigCommand(args);
   } catch (const CLI::Success& e) {

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <sstream>
+#include <stdexcept>
 #include <thread>
 
 namespace flexid::rig {
@@ -27,42 +28,68 @@ bool WaitUntil(Clock::time_point when, const std::atomic<bool>* stop) {
 
 RunSummary RunRig(Rig& rig, BusSink& sink, const RunOptions& options,
                   const std::atomic<bool>* stop) {
+  return RunRigs({{.rig = &rig, .sink = &sink}}, options, stop);
+}
+
+RunSummary RunRigs(const std::vector<ActuatorOnBus>& actuators, const RunOptions& options,
+                   const std::atomic<bool>* stop) {
+  if (actuators.empty()) throw std::invalid_argument("RunRigs: no actuators");
+  const Rig& first = *actuators.front().rig;
+  for (const ActuatorOnBus& actuator : actuators) {
+    const Rig& rig = *actuator.rig;
+    if (rig.sample_count() != first.sample_count() ||
+        rig.options().rate_Hz != first.options().rate_Hz ||
+        rig.options().start_utime != first.options().start_utime)
+      throw std::invalid_argument("RunRigs: the rigs differ in samples, rate or start utime");
+  }
   RunSummary summary;
+  summary.actuators = static_cast<int64_t>(actuators.size());
   const auto count = [&summary](bool sent, int64_t* counter) {
     ++(sent ? *counter : summary.failed_messages);
   };
   const Clock::time_point wall_start = Clock::now();
   if (options.trial_control)
-    count(sink.PublishTrialControl(rig.UtimeOf(0), TrialAction::kStart, rig.protocol().text),
-          &summary.trial_messages);
+    for (const ActuatorOnBus& actuator : actuators)
+      count(actuator.sink->PublishTrialControl(first.UtimeOf(0), TrialAction::kStart,
+                                               actuator.rig->protocol().text),
+            &summary.trial_messages);
   RigSample sample;
-  while (!Stopped(stop) && rig.Next(&sample)) {
+  for (int64_t k = 0; k < first.sample_count() && !Stopped(stop); ++k) {
     if (options.speed > 0.0) {
-      const std::chrono::duration<double> offset(sample.t_s / options.speed);
+      const double t_s = static_cast<double>(k) / first.options().rate_Hz;
+      const std::chrono::duration<double> offset(t_s / options.speed);
       if (!WaitUntil(wall_start + std::chrono::duration_cast<Clock::duration>(offset), stop)) break;
     }
-    if (sample.publish_voltage)
-      count(sink.PublishVoltage(sample.utime, sample.voltage_V), &summary.voltage_messages);
-    count(sink.PublishDeflection(sample.utime, sample.deflection_mm), &summary.deflection_messages);
+    for (const ActuatorOnBus& actuator : actuators) {
+      actuator.rig->Next(&sample);
+      if (sample.publish_voltage)
+        count(actuator.sink->PublishVoltage(sample.utime, sample.voltage_V),
+              &summary.voltage_messages);
+      count(actuator.sink->PublishDeflection(sample.utime, sample.deflection_mm),
+            &summary.deflection_messages);
+    }
     ++summary.samples;
     summary.final_utime = sample.utime;
   }
-  summary.interrupted = summary.samples < rig.sample_count();
+  summary.interrupted = summary.samples < first.sample_count();
   if (options.trial_control)
-    count(sink.PublishTrialControl(rig.UtimeOf(summary.samples), TrialAction::kStop,
-                                   rig.protocol().text),
-          &summary.trial_messages);
-  summary.duration_s = static_cast<double>(summary.samples) / rig.options().rate_Hz;
+    for (const ActuatorOnBus& actuator : actuators)
+      count(actuator.sink->PublishTrialControl(first.UtimeOf(summary.samples), TrialAction::kStop,
+                                               actuator.rig->protocol().text),
+            &summary.trial_messages);
+  summary.duration_s = static_cast<double>(summary.samples) / first.options().rate_Hz;
   summary.wall_s = std::chrono::duration<double>(Clock::now() - wall_start).count();
   return summary;
 }
 
 std::string SummaryLine(const RunSummary& summary) {
   std::ostringstream line;
-  line << "published " << summary.samples << " samples (" << summary.deflection_messages
-       << " deflection, " << summary.voltage_messages << " voltage, " << summary.trial_messages
-       << " trial-control messages) covering " << summary.duration_s << " s of message time in "
-       << summary.wall_s << " s, final utime " << summary.final_utime;
+  line << "published " << summary.samples << " samples";
+  if (summary.actuators > 1) line << " for each of " << summary.actuators << " actuators";
+  line << " (" << summary.deflection_messages << " deflection, " << summary.voltage_messages
+       << " voltage, " << summary.trial_messages << " trial-control messages) covering "
+       << summary.duration_s << " s of message time in " << summary.wall_s << " s, final utime "
+       << summary.final_utime;
   if (summary.failed_messages > 0) line << ", " << summary.failed_messages << " failed to send";
   if (summary.interrupted) line << " (interrupted)";
   return line.str();

@@ -9,11 +9,17 @@
 //
 // Pacing: sample k goes out at wall time start + t_k / speed; speed 0 publishes as fast as
 // possible. Message time never depends on the speed.
+//
+// Several actuators (RunRigs) advance together: all trial starts (in the order given), then
+// per sample k every actuator's voltage and deflection in turn, all with utime_k, then all
+// trial stops. A stop request ends the run between samples, so every actuator has played
+// the same samples.
 #pragma once
 
 #include <atomic>
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "clients/rig/rig.h"
 
@@ -37,7 +43,8 @@ struct RunOptions {
 };
 
 struct RunSummary {
-  int64_t samples = 0;              // samples played (all of them unless interrupted)
+  int64_t actuators = 1;            // played together (RunRigs)
+  int64_t samples = 0;              // samples played per actuator (all unless interrupted)
   int64_t voltage_messages = 0;     // sent (failed ones are not counted here)
   int64_t deflection_messages = 0;  // sent
   int64_t trial_messages = 0;       // sent
@@ -52,8 +59,21 @@ struct RunSummary {
 RunSummary RunRig(Rig& rig, BusSink& sink, const RunOptions& options,
                   const std::atomic<bool>* stop = nullptr);
 
+// One actuator of RunRigs; neither is owned.
+struct ActuatorOnBus {
+  Rig* rig = nullptr;
+  BusSink* sink = nullptr;
+};
+
+// Plays several rigs together (see above). They must agree in sample count, rate and start
+// utime (MakeActuatorRigs's do); throws std::invalid_argument otherwise or if there are none.
+RunSummary RunRigs(const std::vector<ActuatorOnBus>& actuators, const RunOptions& options,
+                   const std::atomic<bool>* stop = nullptr);
+
 // One line: "published 100 samples (100 deflection, 10 voltage, 2 trial-control
-// messages) covering 10 s of message time in 0.0021 s, final utime 1700000009900000".
+// messages) covering 10 s of message time in 0.0021 s, final utime 1700000009900000";
+// with several actuators "published 100 samples for each of 2 actuators (200 deflection,
+// ...". Message counts are totals over the actuators.
 std::string SummaryLine(const RunSummary& summary);
 
 }  // namespace flexid::rig

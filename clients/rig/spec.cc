@@ -111,6 +111,17 @@ std::optional<int64_t> SpecReader::Count(const std::string& key) {
   return value;
 }
 
+std::optional<uint64_t> SpecReader::WholeNumber(const std::string& key) {
+  const std::string* text = Find(key);
+  if (!text) return std::nullopt;
+  uint64_t value = 0;
+  const char* end = text->data() + text->size();
+  const auto result = std::from_chars(text->data(), end, value);
+  if (result.ec != std::errc{} || result.ptr != end)
+    spec_->Fail(key + " must be a whole number >= 0 (got " + Quote(*text) + ")");
+  return value;
+}
+
 std::optional<std::vector<double>> SpecReader::NumberList(const std::string& key) {
   const std::string* text = Find(key);
   if (!text) return std::nullopt;

@@ -45,6 +45,8 @@ class SpecReader {
   std::optional<double> InRange(const std::string& key, double low, double high, bool include_ends);
   // A positive integer (e.g. a cycle count).
   std::optional<int64_t> Count(const std::string& key);
+  // A whole number >= 0 up to 2^64 - 1 (e.g. a generator seed).
+  std::optional<uint64_t> WholeNumber(const std::string& key);
   // Finite numbers separated by '/', at least one ("2/4/6/8").
   std::optional<std::vector<double>> NumberList(const std::string& key);
 
