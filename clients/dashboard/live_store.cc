@@ -1,0 +1,385 @@
+// The dashboard's state and event stream (live_store.h): per-actuator series with
+// decimated batches, alerts, model summaries and the JSON the page reads.
+#include "clients/dashboard/live_store.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace flexid::dashboard {
+namespace {
+
+using nlohmann::json;
+
+// Message time in seconds, to the millisecond (shortest JSON form, e.g. 1795250559.123).
+double SecondsOf(int64_t utime) { return static_cast<double>(utime / 1000) / 1000.0; }
+
+json Number(double x) { return std::isfinite(x) ? json(RoundSignificant(x, 6)) : json(nullptr); }
+
+json PointJson(const Point& p) {
+  return {{"t_s", SecondsOf(p.utime)},
+          {"voltage_V", Number(p.voltage_V)},
+          {"measured_mm", Number(p.measured_mm)},
+          {"predicted_mm", Number(p.predicted_mm)},
+          {"residual_mm", Number(p.residual_mm)}};
+}
+
+// Column arrays as uPlot takes them.
+template <typename Points>
+json ColumnsJson(const Points& points, const std::vector<size_t>& indices) {
+  json t = json::array(), v = json::array(), measured = json::array(), predicted = json::array(),
+       residual = json::array();
+  for (const size_t i : indices) {
+    const Point& p = points[i];
+    t.push_back(SecondsOf(p.utime));
+    v.push_back(Number(p.voltage_V));
+    measured.push_back(Number(p.measured_mm));
+    predicted.push_back(Number(p.predicted_mm));
+    residual.push_back(Number(p.residual_mm));
+  }
+  return {{"t_s", std::move(t)},
+          {"voltage_V", std::move(v)},
+          {"measured_mm", std::move(measured)},
+          {"predicted_mm", std::move(predicted)},
+          {"residual_mm", std::move(residual)}};
+}
+
+json MembershipsJson(const std::vector<double>& memberships) {
+  json out = json::array();
+  for (const double m : memberships) out.push_back(Number(m));
+  return out;
+}
+
+json CountersJson(const Counters& c) {
+  return {{"predictions", c.predictions},
+          {"alerts", c.alerts},
+          {"bad_messages", c.bad_messages},
+          {"out_of_order", c.out_of_order},
+          {"too_many_actuators", c.too_many_actuators}};
+}
+
+bool SameAlert(const Alert& a, const Alert& b) {
+  return a.utime == b.utime && a.actuator_id == b.actuator_id && a.kind == b.kind &&
+         a.text == b.text;
+}
+
+const json* Member(const json& object, const char* key) {
+  if (!object.is_object()) return nullptr;
+  const auto it = object.find(key);
+  return it == object.end() ? nullptr : &*it;
+}
+
+}  // namespace
+
+bool StoreOptions::IsValid(std::string* error) const {
+  auto fail = [&](const char* why) {
+    if (error) *error = why;
+    return false;
+  };
+  if (history_points == 0) return fail("history_points must be > 0");
+  if (max_points_per_batch < 2) return fail("max_points_per_batch must be >= 2");
+  if (max_pending_points < max_points_per_batch)
+    return fail("max_pending_points must be >= max_points_per_batch");
+  if (max_actuators == 0) return fail("max_actuators must be > 0");
+  if (max_alerts == 0) return fail("max_alerts must be > 0");
+  if (max_events < 2) return fail("max_events must be >= 2");
+  if (restart_gap_us < 0) return fail("restart_gap_us must be >= 0");
+  return true;
+}
+
+std::vector<size_t> DecimationIndices(size_t n, size_t max_points) {
+  std::vector<size_t> indices;
+  if (n == 0 || max_points == 0) return indices;
+  if (n <= max_points || max_points == 1) {
+    if (max_points == 1) return {n - 1};
+    indices.resize(n);
+    for (size_t i = 0; i < n; ++i) indices[i] = i;
+    return indices;
+  }
+  indices.reserve(max_points);
+  // k (n - 1) / (max_points - 1), rounded down: strictly increasing since n > max_points.
+  for (size_t k = 0; k < max_points; ++k) indices.push_back(k * (n - 1) / (max_points - 1));
+  return indices;
+}
+
+double RoundSignificant(double x, int digits) {
+  if (!std::isfinite(x) || x == 0.0) return x;
+  const int exponent = digits - static_cast<int>(std::ceil(std::log10(std::fabs(x))));
+  // Scale by an exact power of ten (<= 1e22), so the result is the double nearest to the
+  // rounded decimal and prints as it.
+  if (exponent > 22 || exponent < -22) return x;
+  if (exponent >= 0) {
+    const double scale = std::pow(10.0, exponent);
+    return std::round(x * scale) / scale;
+  }
+  const double scale = std::pow(10.0, -exponent);
+  return std::round(x / scale) * scale;
+}
+
+std::string SeverityName(int severity) {
+  switch (severity) {
+    case 0:
+      return "info";
+    case 2:
+      return "critical";
+    default:
+      return "warning";
+  }
+}
+
+bool IsValidActuatorId(const std::string& id) {
+  if (id.empty() || id.size() > 64) return false;
+  return std::all_of(id.begin(), id.end(), [](char c) {
+    return (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_' ||
+           c == '-';
+  });
+}
+
+json AlertJson(const Alert& a) {
+  return {{"actuator", a.actuator_id},
+          {"kind", a.kind},
+          {"severity", SeverityName(a.severity)},
+          {"utime", a.utime},
+          {"t_s", SecondsOf(a.utime)},
+          {"start_utime", a.start_utime},
+          {"end_utime", a.end_utime},
+          {"magnitude_mm", Number(a.magnitude_mm)},
+          {"threshold_mm", Number(a.threshold_mm)},
+          {"text", a.text}};
+}
+
+std::optional<Alert> AlertFromJson(const json& in) {
+  const json* utime = Member(in, "utime");
+  const json* kind = Member(in, "kind");
+  if (!utime || !utime->is_number_integer() || !kind || !kind->is_string()) return std::nullopt;
+  Alert a;
+  a.utime = utime->get<int64_t>();
+  a.kind = kind->get<std::string>();
+  if (const json* v = Member(in, "actuator"); v && v->is_string()) a.actuator_id = *v;
+  if (const json* v = Member(in, "severity"); v && v->is_number_integer()) a.severity = *v;
+  if (const json* v = Member(in, "severity"); v && v->is_string())
+    a.severity = *v == "info" ? 0 : *v == "critical" ? 2 : 1;
+  if (const json* v = Member(in, "start_utime"); v && v->is_number_integer()) a.start_utime = *v;
+  if (const json* v = Member(in, "end_utime"); v && v->is_number_integer()) a.end_utime = *v;
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  a.magnitude_mm = nan;
+  a.threshold_mm = nan;
+  if (const json* v = Member(in, "magnitude_mm"); v && v->is_number()) a.magnitude_mm = *v;
+  if (const json* v = Member(in, "threshold_mm"); v && v->is_number()) a.threshold_mm = *v;
+  if (const json* v = Member(in, "text"); v && v->is_string()) a.text = *v;
+  return a;
+}
+
+std::optional<json> SummarizeModel(const json& r) {
+  const json* actuator = Member(r, "actuator");
+  const json* version = Member(r, "version");
+  if (!actuator || !actuator->is_string() || !version || !version->is_number_integer())
+    return std::nullopt;
+  json out = {{"actuator", *actuator}, {"version", *version}};
+  for (const char* key : {"active", "created_utime", "trials"})
+    if (const json* v = Member(r, key)) out[key] = *v;
+  if (const json* model = Member(r, "model")) {
+    if (const json* kind = Member(*model, "kind"); kind && kind->is_string()) out["kind"] = *kind;
+    json levels = json::array();
+    if (const json* locals = Member(*model, "local_models"); locals && locals->is_array())
+      for (const json& local : *locals)
+        if (const json* level = Member(local, "level_V"); level && level->is_number())
+          levels.push_back(*level);
+    out["levels_V"] = std::move(levels);
+  }
+  json fit = nullptr;
+  if (const json* f = Member(r, "fit"); f && f->is_object()) {
+    fit = json::object();
+    for (const char* key : {"fit_percent", "rmse_mm"})
+      if (const json* v = Member(*f, key); v && v->is_number())
+        fit[key] = RoundSignificant(v->get<double>(), 4);
+    for (const char* key : {"samples", "levels_V"})
+      if (const json* v = Member(*f, key)) fit[key] = *v;
+  }
+  out["fit"] = std::move(fit);
+  return out;
+}
+
+LiveStore::LiveStore(StoreOptions options) : options_(options) {
+  std::string why;
+  if (!options_.IsValid(&why)) throw std::invalid_argument("dashboard store: " + why);
+}
+
+LiveStore::Series* LiveStore::FindOrCreate(const std::string& actuator_id) {
+  auto it = series_.find(actuator_id);
+  if (it != series_.end()) return &it->second;
+  if (series_.size() >= options_.max_actuators) return nullptr;
+  return &series_.emplace(actuator_id, Series(options_.history_points)).first->second;
+}
+
+AddOutcome LiveStore::AddPrediction(const Prediction& in) {
+  const Point& p = in.point;
+  const bool valid = IsValidActuatorId(in.actuator_id) && std::isfinite(p.voltage_V) &&
+                     std::isfinite(p.measured_mm) && !std::isinf(p.predicted_mm) &&
+                     !std::isinf(p.residual_mm) && in.model_version >= 0 &&
+                     std::all_of(in.memberships.begin(), in.memberships.end(),
+                                 [](double m) { return std::isfinite(m); });
+  std::lock_guard lock(mutex_);
+  if (!valid) {
+    ++counters_.bad_messages;
+    return AddOutcome::kInvalid;
+  }
+  Series* s = FindOrCreate(in.actuator_id);
+  if (!s) {
+    ++counters_.too_many_actuators;
+    return AddOutcome::kTooManyActuators;
+  }
+  if (s->has_point && p.utime <= s->last_utime) {
+    if (s->last_utime - p.utime <= options_.restart_gap_us) {
+      ++counters_.out_of_order;
+      return AddOutcome::kOutOfOrder;
+    }
+    // Far back in time: a new run (a replayed log, a rig restarted at an earlier time).
+    s->history.Clear();
+    s->pending.clear();
+    s->reset = true;
+  }
+  if (s->pending.size() >= options_.max_pending_points) {
+    // No batch for a long while: keep every other point.
+    size_t kept = 0;
+    for (size_t i = 0; i < s->pending.size(); i += 2) s->pending[kept++] = s->pending[i];
+    s->pending.resize(kept);
+  }
+  s->pending.push_back(p);
+  s->latest = p;
+  s->has_point = true;
+  s->last_utime = p.utime;
+  s->model_version = in.model_version;
+  s->trial_id = in.trial_id;
+  s->memberships = in.memberships;
+  ++s->received;
+  ++counters_.predictions;
+  return AddOutcome::kAccepted;
+}
+
+bool LiveStore::AddAlert(const Alert& alert) {
+  std::lock_guard lock(mutex_);
+  for (const Alert& held : alerts_)
+    if (SameAlert(held, alert)) return false;
+  if (IsValidActuatorId(alert.actuator_id)) FindOrCreate(alert.actuator_id);
+  // Keep the list in message-time order (alerts from the RPC may arrive after live ones).
+  auto at = std::upper_bound(alerts_.begin(), alerts_.end(), alert.utime,
+                             [](int64_t utime, const Alert& a) { return utime < a.utime; });
+  alerts_.insert(at, alert);
+  while (alerts_.size() > options_.max_alerts) alerts_.pop_front();
+  ++counters_.alerts;
+  AppendEvent("alert", AlertJson(alert));
+  return true;
+}
+
+void LiveStore::SetModel(const json& summary) {
+  const json* actuator = Member(summary, "actuator");
+  if (!actuator || !actuator->is_string()) return;
+  std::lock_guard lock(mutex_);
+  Series* s = FindOrCreate(actuator->get<std::string>());
+  if (!s) return;
+  s->model = summary;
+  AppendEvent("model", summary);
+}
+
+void LiveStore::CountBadMessage() {
+  std::lock_guard lock(mutex_);
+  ++counters_.bad_messages;
+}
+
+size_t LiveStore::FlushBatch() {
+  std::lock_guard lock(mutex_);
+  json actuators = json::array();
+  size_t sent = 0;
+  for (auto& [id, s] : series_) {
+    if (s.pending.empty() && !s.reset) continue;
+    const std::vector<size_t> indices =
+        DecimationIndices(s.pending.size(), options_.max_points_per_batch);
+    json entry = ColumnsJson(s.pending, indices);
+    entry["id"] = id;
+    entry["received"] = s.received;
+    entry["reset"] = s.reset;
+    entry["model_version"] = s.model_version;
+    entry["trial"] = s.trial_id;
+    entry["memberships"] = MembershipsJson(s.memberships);
+    actuators.push_back(std::move(entry));
+    for (const size_t i : indices) s.history.Push(s.pending[i]);
+    sent += indices.size();
+    s.pending.clear();
+    s.reset = false;
+  }
+  if (actuators.empty()) return 0;
+  ++counters_.batches;
+  AppendEvent("points",
+              {{"actuators", std::move(actuators)}, {"counters", CountersJson(counters_)}});
+  return sent;
+}
+
+json LiveStore::StateJson() const {
+  std::lock_guard lock(mutex_);
+  json actuators = json::array();
+  for (const auto& [id, s] : series_) {
+    std::vector<size_t> all(s.history.size());
+    for (size_t i = 0; i < all.size(); ++i) all[i] = i;
+    actuators.push_back({{"id", id},
+                         {"received", s.received},
+                         {"model_version", s.model_version},
+                         {"trial", s.trial_id},
+                         {"latest", s.has_point ? PointJson(s.latest) : json(nullptr)},
+                         {"memberships", MembershipsJson(s.memberships)},
+                         {"model", s.model},
+                         {"history", ColumnsJson(s.history, all)}});
+  }
+  json alerts = json::array();
+  for (auto it = alerts_.rbegin(); it != alerts_.rend(); ++it) alerts.push_back(AlertJson(*it));
+  return {{"event_id", next_event_id_ - 1},
+          {"counters", CountersJson(counters_)},
+          {"actuators", std::move(actuators)},
+          {"alerts", std::move(alerts)}};
+}
+
+Counters LiveStore::counters() const {
+  std::lock_guard lock(mutex_);
+  return counters_;
+}
+
+uint64_t LiveStore::last_event_id() const {
+  std::lock_guard lock(mutex_);
+  return next_event_id_ - 1;
+}
+
+void LiveStore::AppendEvent(std::string name, const json& data) {
+  events_.push_back({next_event_id_++, std::move(name), data.dump()});
+  while (events_.size() > options_.max_events) events_.pop_front();
+  changed_.notify_all();
+}
+
+EventWait LiveStore::WaitEvents(uint64_t after_id, std::chrono::milliseconds timeout,
+                                size_t max_events) const {
+  std::unique_lock lock(mutex_);
+  const uint64_t last = next_event_id_ - 1;
+  if (after_id > last) after_id = last;
+  changed_.wait_for(lock, timeout, [&] { return closed_ || next_event_id_ - 1 > after_id; });
+  EventWait out;
+  out.closed = closed_;
+  if (closed_ || next_event_id_ - 1 <= after_id) return out;
+  if (events_.empty() || events_.front().id > after_id + 1) {
+    // Fell behind what is kept: the page must reload the state.
+    out.events.push_back({next_event_id_ - 1, "resync", "{}"});
+    return out;
+  }
+  for (const Event& e : events_) {
+    if (e.id <= after_id) continue;
+    out.events.push_back(e);
+    if (out.events.size() >= max_events) break;
+  }
+  return out;
+}
+
+void LiveStore::Close() {
+  std::lock_guard lock(mutex_);
+  closed_ = true;
+  changed_.notify_all();
+}
+
+}  // namespace flexid::dashboard

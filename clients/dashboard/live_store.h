@@ -1,0 +1,191 @@
+// The dashboard's state and the event stream derived from it, without the bus or HTTP.
+//
+// The bus adapter (bus.h) feeds decoded predictions, alerts and model summaries in; the
+// HTTP server (server.h) reads a JSON snapshot (/api/state) and waits for events
+// (/events). Both sides share one mutex, so a snapshot and the id of the last event it
+// contains always agree: a page that loads the snapshot and then streams the events after
+// that id sees every point and alert exactly once.
+//
+// Points are batched: predictions gather per actuator and FlushBatch() (called every
+// ~150 ms) turns them into one "points" event, decimated to at most
+// max_points_per_batch points per actuator. At 16 actuators x 500 Hz that is 16 x 25
+// points per batch instead of 16 x 75, ~7 batches a second, each one JSON document. The
+// decimated points also go into a per-actuator ring buffer, the history a freshly loaded
+// page draws first.
+//
+// Event payloads (JSON; times are message time):
+//   points: {"actuators": [{"id", "received", "reset", "model_version", "trial",
+//             "memberships", "t_s": [..], "voltage_V": [..], "measured_mm": [..],
+//             "predicted_mm": [..], "residual_mm": [..]}], "counters": {..}}
+//   alert:  AlertJson(alert)       model: SummarizeModel(...)       resync: {}
+#pragma once
+
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <map>
+#include <mutex>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "clients/dashboard/ring_buffer.h"
+
+namespace flexid::dashboard {
+
+// One prediction of one actuator (prediction_t without the channel).
+struct Point {
+  int64_t utime = 0;          // message time, microseconds
+  double voltage_V = 0.0;     // voltage in force
+  double measured_mm = 0.0;   // measured deflection
+  double predicted_mm = 0.0;  // model prediction (NaN: no model yet)
+  double residual_mm = 0.0;   // measured - predicted (NaN: no model yet)
+};
+
+struct Prediction {
+  std::string actuator_id;
+  Point point;
+  int32_t model_version = 0;  // 0: no model yet
+  int32_t trial_id = 0;       // 0: no trial recording
+  std::vector<double> memberships;
+};
+
+// An alert as on FLEXID/ALERT (alert_t) or from the "alerts" RPC.
+struct Alert {
+  int64_t utime = 0;  // when it was raised, message time, microseconds
+  std::string actuator_id;
+  std::string kind;
+  int severity = 1;  // 0 info, 1 warning, 2 critical (alert_t::kInfo ...)
+  int64_t start_utime = 0;
+  int64_t end_utime = 0;
+  double magnitude_mm = 0.0;
+  double threshold_mm = 0.0;
+  std::string text;
+};
+
+struct StoreOptions {
+  size_t history_points = 4000;        // decimated points kept per actuator for new pages
+  size_t max_points_per_batch = 25;    // per actuator and batch, after decimation
+  size_t max_pending_points = 20000;   // per actuator between two batches (then thinned)
+  size_t max_actuators = 64;           // further actuator ids are counted and ignored
+  size_t max_alerts = 200;             // most recent alerts kept
+  size_t max_events = 512;             // events kept for streams that lag behind
+  int64_t restart_gap_us = 5'000'000;  // a point this far before the last one restarts the stream
+
+  bool IsValid(std::string* error) const;
+};
+
+// What AddPrediction did with a prediction.
+enum class AddOutcome { kAccepted, kInvalid, kOutOfOrder, kTooManyActuators };
+
+struct Counters {
+  int64_t predictions = 0;   // accepted
+  int64_t alerts = 0;        // accepted (duplicates not counted)
+  int64_t bad_messages = 0;  // malformed, invalid values, unknown channel
+  int64_t out_of_order = 0;  // predictions not after the previous one of their actuator
+  int64_t too_many_actuators = 0;
+  int64_t batches = 0;
+};
+
+// One server-sent event: its id, "event:" name and "data:" JSON (serialised once).
+struct Event {
+  uint64_t id = 0;
+  std::string name;
+  std::string data;
+};
+
+struct EventWait {
+  std::vector<Event> events;  // in id order
+  bool closed = false;        // the store is shutting down: end the stream
+};
+
+// Indices of at most max_points evenly spread samples of n, always the first and the last
+// (n <= max_points: all). Strided thinning keeps the shape of the smooth deflection; a
+// single-sample spike can fall between two kept points.
+std::vector<size_t> DecimationIndices(size_t n, size_t max_points);
+
+// x rounded to `digits` significant digits (so JSON carries "1.23457", not 17 digits);
+// non-finite stays as it is (JSON null).
+double RoundSignificant(double x, int digits);
+
+// "info", "warning", "critical" (unknown values: "warning").
+std::string SeverityName(int severity);
+
+nlohmann::json AlertJson(const Alert& alert);
+
+// An alert from the "alerts" RPC's list (storage's AlertJson: actuator, kind, severity as
+// a number, utime, ...). nullopt when a required field is missing or of the wrong type.
+std::optional<Alert> AlertFromJson(const nlohmann::json& json);
+
+// The page's view of a "model" RPC result: actuator, version, active, created_utime,
+// trials, kind ("tf" or "ts_fuzzy"), levels_V (one per local model) and fit (fit_percent,
+// rmse_mm, samples, levels_V where present). nullopt when actuator or version is missing.
+std::optional<nlohmann::json> SummarizeModel(const nlohmann::json& rpc_result);
+
+// Actuator ids name LCM channels: [A-Za-z0-9_-]{1,64}.
+bool IsValidActuatorId(const std::string& id);
+
+class LiveStore {
+ public:
+  explicit LiveStore(StoreOptions options = {});
+
+  AddOutcome AddPrediction(const Prediction& prediction);
+  // True when new (an alert already held, same time, actuator, kind and text, is ignored).
+  // An alert creates its actuator's card.
+  bool AddAlert(const Alert& alert);
+  // Stores the summary (SummarizeModel) as the actuator's model and sends a "model" event.
+  void SetModel(const nlohmann::json& summary);
+  void CountBadMessage();
+
+  // Sends the points gathered since the last call as one "points" event (nothing when
+  // there are none). Returns the number of points sent.
+  size_t FlushBatch();
+
+  // /api/state: {"event_id", "counters", "actuators": [{"id", "received", "model_version",
+  // "trial", "latest", "memberships", "model", "history": {"t_s", ...}}], "alerts"
+  // (newest first)}.
+  nlohmann::json StateJson() const;
+  Counters counters() const;
+  uint64_t last_event_id() const;
+
+  // Events with id > after_id, waiting up to `timeout` for the first. A stream that fell
+  // behind the kept events gets one "resync" event (the page reloads the state). An
+  // after_id beyond the last event (a page from before a restart) means "from now".
+  EventWait WaitEvents(uint64_t after_id, std::chrono::milliseconds timeout,
+                       size_t max_events = 64) const;
+  // Wakes every waiter; WaitEvents returns closed from now on.
+  void Close();
+
+ private:
+  struct Series {
+    explicit Series(size_t capacity) : history(capacity) {}
+    RingBuffer<Point> history;   // decimated, as sent
+    std::vector<Point> pending;  // since the last batch
+    int64_t received = 0;
+    int64_t last_utime = 0;
+    bool has_point = false;
+    bool reset = false;  // the stream restarted: the next batch tells the page to clear
+    Point latest;
+    int32_t model_version = 0;
+    int32_t trial_id = 0;
+    std::vector<double> memberships;
+    nlohmann::json model;  // SummarizeModel, or null
+  };
+
+  Series* FindOrCreate(const std::string& actuator_id);  // nullptr: too many actuators
+  void AppendEvent(std::string name, const nlohmann::json& data);
+
+  StoreOptions options_;
+  mutable std::mutex mutex_;
+  mutable std::condition_variable changed_;
+  std::map<std::string, Series> series_;
+  std::deque<Alert> alerts_;  // oldest first, by utime
+  std::deque<Event> events_;
+  uint64_t next_event_id_ = 1;
+  bool closed_ = false;
+  Counters counters_;
+};
+
+}  // namespace flexid::dashboard

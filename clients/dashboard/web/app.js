@@ -1,0 +1,442 @@
+// flexid-dashboard's page: one card per actuator with uPlot charts of voltage, measured and
+// predicted deflection and residual over the last minutes of message time, the active
+// model and its fit, and the alerts as they arrive.
+//
+// Data flow: GET /api/state (a snapshot, with the id of the last event it contains), then
+// an EventSource on /events?after=ID: "points" (batched, decimated points of every
+// actuator), "alert", "model", and "resync" (the stream fell behind: load the snapshot
+// again). When the stream breaks (the server restarted), the page loads the snapshot again
+// and reopens the stream, waiting 1 s, then up to 10 s, between tries.
+//
+// Hooks for tests: .card[data-actuator=ID] with data-points (points drawn so far),
+// data-received (predictions the server took), data-model-version; .alert[data-kind] in
+// each card and in #alerts; #connection[data-state] is connecting, live or reconnecting.
+'use strict';
+
+(() => {
+  const MAX_POINTS = 20000;  // per series, whatever the window
+  const MAX_ALERTS = 100;    // per list
+  const CHART_HEIGHT = 150;
+  const GAP_S = 20;  // a pause this long in message time breaks the lines (no data, no line)
+  const COLORS = {
+    voltage: '#b45309',
+    measured: '#2563eb',
+    predicted: '#dc2626',
+    residual: '#7c3aed',
+  };
+
+  const cards = new Map();  // actuator id -> card
+  const alertKeys = new Set();
+  let windowS = 60;
+  let source = null;
+  let retryTimer = null;
+  let retryMs = 1000;
+  let drawQueued = false;
+
+  const $ = (id) => document.getElementById(id);
+
+  function el(tag, className, text) {
+    const node = document.createElement(tag);
+    if (className) node.className = className;
+    if (text !== undefined) node.textContent = text;
+    return node;
+  }
+
+  function fmt(x, digits) {
+    if (x === null || x === undefined || !Number.isFinite(x)) return '–';
+    return Number(x).toPrecision(digits).replace(/(\.\d*?)0+$/, '$1').replace(/\.$/, '');
+  }
+
+  function clock(t_s) {
+    const d = new Date(t_s * 1000);
+    return d.toLocaleTimeString([], {hour12: false}) + '.' + String(d.getMilliseconds()).padStart(3, '0').slice(0, 1);
+  }
+
+  // ---- charts ----------------------------------------------------------------------
+
+  function makePlot(container, label, series) {
+    const opts = {
+      width: Math.max(container.clientWidth, 200),
+      height: CHART_HEIGHT,
+      scales: {x: {time: true}},
+      legend: {live: true},
+      cursor: {drag: {x: false, y: false}},
+      axes: [
+        {stroke: '#64748b', grid: {stroke: '#eef2f7'}, ticks: {stroke: '#e2e8f0'}},
+        {stroke: '#64748b', grid: {stroke: '#eef2f7'}, ticks: {stroke: '#e2e8f0'}, size: 56,
+         label, labelSize: 18, labelFont: '12px system-ui, sans-serif'},
+      ],
+      series: [{label: 'time'}].concat(series.map((s) => ({
+        label: s.label,
+        stroke: s.color,
+        width: s.width || 1.5,
+        dash: s.dash,
+        paths: s.stepped ? uPlot.paths.stepped({align: 1}) : undefined,
+        points: {show: false},
+        value: (u, v) => (v === null || v === undefined ? '–' : fmt(v, 4)),
+      }))),
+    };
+    return new uPlot(opts, [[]].concat(series.map(() => [])), container);
+  }
+
+  function newCard(id) {
+    const root = el('article', 'card');
+    root.dataset.actuator = id;
+    root.dataset.points = '0';
+    root.dataset.received = '0';
+    root.dataset.modelVersion = '0';
+
+    const head = el('header', 'card-head');
+    head.append(el('h2', 'name', id));
+    const trial = el('span', 'trial', '');
+    const counter = el('span', 'points', '0 points');
+    head.append(trial, counter);
+
+    const readout = el('div', 'readout', 'no prediction yet');
+    const model = el('div', 'model', 'model: none yet');
+    model.dataset.modelVersion = '0';
+
+    const charts = el('div', 'charts');
+    const boxes = {};
+    for (const [key, title] of [['voltage', 'voltage'], ['deflection', 'deflection'], ['residual', 'residual']]) {
+      const box = el('div', 'chart chart-' + key);
+      box.append(el('div', 'chart-title', title));
+      const host = el('div', 'chart-host');
+      box.append(host);
+      charts.append(box);
+      boxes[key] = host;
+    }
+
+    const alertsHead = el('h3', 'card-alerts-head', 'Alerts');
+    const alerts = el('ol', 'alerts card-alerts');
+    const none = el('li', 'none', 'none');
+    alerts.append(none);
+
+    root.append(head, readout, model, charts, alertsHead, alerts);
+    const list = $('actuators');
+    // Cards in id order.
+    const after = [...list.querySelectorAll('.card')].find((c) => c.dataset.actuator > id);
+    list.insertBefore(root, after || null);
+    $('empty').hidden = true;
+
+    const card = {
+      id, root, trial, counter, readout, model, alerts, none,
+      data: {t: [], v: [], measured: [], predicted: [], residual: []},
+      points: 0,
+      modelInfo: null,
+      modelVersion: 0,
+      dirty: true,
+      plots: null,
+      boxes,
+    };
+    card.plots = {
+      // The voltage holds until the next sample: drawn as steps.
+      voltage: makePlot(boxes.voltage, 'V', [{label: 'voltage V', color: COLORS.voltage, stepped: true}]),
+      deflection: makePlot(boxes.deflection, 'mm', [
+        {label: 'measured mm', color: COLORS.measured},
+        {label: 'predicted mm', color: COLORS.predicted, dash: [6, 4], width: 2},
+      ]),
+      residual: makePlot(boxes.residual, 'mm', [{label: 'residual mm', color: COLORS.residual}]),
+    };
+    cards.set(id, card);
+    return card;
+  }
+
+  function card(id) {
+    return cards.get(id) || newCard(id);
+  }
+
+  function clearData(c) {
+    for (const key of Object.keys(c.data)) c.data[key] = [];
+  }
+
+  function appendColumns(c, cols) {
+    const d = c.data;
+    const n = cols.t_s.length;
+    for (let i = 0; i < n; i++) {
+      const last = d.t.length ? d.t[d.t.length - 1] : null;
+      if (last !== null && cols.t_s[i] - last > GAP_S) {
+        d.t.push(last + 0.001);
+        for (const key of ['v', 'measured', 'predicted', 'residual']) d[key].push(null);
+      }
+      d.t.push(cols.t_s[i]);
+      d.v.push(cols.voltage_V[i]);
+      d.measured.push(cols.measured_mm[i]);
+      d.predicted.push(cols.predicted_mm[i]);
+      d.residual.push(cols.residual_mm[i]);
+    }
+    c.points += n;
+    trim(c);
+    c.dirty = true;
+  }
+
+  // Keeps the window's worth of message time (and at most MAX_POINTS).
+  function trim(c) {
+    const t = c.data.t;
+    if (t.length === 0) return;
+    const cutoff = t[t.length - 1] - windowS;
+    let first = 0;
+    while (first < t.length && t[first] < cutoff) first++;
+    first = Math.max(first, t.length - MAX_POINTS);
+    if (first > 0) for (const key of Object.keys(c.data)) c.data[key].splice(0, first);
+  }
+
+  function scheduleDraw() {
+    if (drawQueued) return;
+    drawQueued = true;
+    requestAnimationFrame(draw);
+  }
+
+  function draw() {
+    drawQueued = false;
+    for (const c of cards.values()) {
+      if (!c.dirty) continue;
+      c.dirty = false;
+      const d = c.data;
+      c.plots.voltage.setData([d.t, d.v]);
+      c.plots.deflection.setData([d.t, d.measured, d.predicted]);
+      c.plots.residual.setData([d.t, d.residual]);
+      c.root.dataset.points = String(c.points);
+      c.counter.textContent = c.points.toLocaleString() + ' points';
+    }
+  }
+
+  function resizeAll() {
+    for (const c of cards.values())
+      for (const key of Object.keys(c.plots)) {
+        const width = Math.max(c.boxes[key].clientWidth, 200);
+        if (c.plots[key].width !== width) c.plots[key].setSize({width, height: CHART_HEIGHT});
+      }
+  }
+
+  // ---- readouts, model, alerts ------------------------------------------------------
+
+  function setReadout(c, latest, received, trialId, memberships) {
+    if (received !== undefined) {
+      c.root.dataset.received = String(received);
+    }
+    c.trial.textContent = trialId ? 'trial ' + trialId : 'no trial';
+    if (!latest) return;
+    const parts = [
+      ['V', fmt(latest.voltage_V, 3) + ' V'],
+      ['measured', fmt(latest.measured_mm, 4) + ' mm'],
+      ['predicted', fmt(latest.predicted_mm, 4) + ' mm'],
+      ['residual', fmt(latest.residual_mm, 3) + ' mm'],
+    ];
+    if (memberships && memberships.length > 1)
+      parts.push(['rules', memberships.map((m) => fmt(m, 2)).join(' / ')]);
+    c.readout.replaceChildren();
+    for (const [name, value] of parts) {
+      const item = el('span', 'reading');
+      item.append(el('span', 'reading-name', name), el('span', 'reading-value', value));
+      c.readout.append(item);
+    }
+    c.readout.append(el('span', 'reading-time', clock(latest.t_s)));
+  }
+
+  function lastOf(cols) {
+    const n = cols.t_s.length;
+    if (n === 0) return null;
+    return {
+      t_s: cols.t_s[n - 1],
+      voltage_V: cols.voltage_V[n - 1],
+      measured_mm: cols.measured_mm[n - 1],
+      predicted_mm: cols.predicted_mm[n - 1],
+      residual_mm: cols.residual_mm[n - 1],
+    };
+  }
+
+  function showModel(c) {
+    const m = c.modelInfo;
+    const version = c.modelVersion;
+    c.root.dataset.modelVersion = String(version);
+    c.model.dataset.modelVersion = String(version);
+    c.model.replaceChildren();
+    if (!version) {
+      c.model.append(el('span', 'model-none', 'no model yet: predictions start once flexidd identifies one'));
+      return;
+    }
+    c.model.append(el('span', 'model-version', 'model v' + version));
+    if (!m || m.version !== version) {
+      c.model.append(el('span', 'model-detail', 'loading…'));
+      return;
+    }
+    const bits = [];
+    if (m.fit && m.fit.fit_percent !== undefined) bits.push('fit ' + fmt(m.fit.fit_percent, 4) + ' %');
+    if (m.fit && m.fit.rmse_mm !== undefined) bits.push('RMSE ' + fmt(m.fit.rmse_mm, 3) + ' mm');
+    if (m.kind === 'ts_fuzzy' && m.levels_V && m.levels_V.length)
+      bits.push('T-S, ' + m.levels_V.length + ' rules at ' + m.levels_V.map((v) => fmt(v, 3)).join(', ') + ' V');
+    else if (m.kind === 'tf') bits.push('one transfer function');
+    if (m.trials && m.trials.length) bits.push('trials ' + m.trials.join(', '));
+    for (const b of bits) c.model.append(el('span', 'model-detail', b));
+  }
+
+  function alertItem(a, withActuator) {
+    const li = el('li', 'alert sev-' + a.severity);
+    li.dataset.kind = a.kind;
+    li.dataset.severity = a.severity;
+    li.dataset.actuator = a.actuator;
+    li.dataset.utime = String(a.utime);
+    const head = el('div', 'alert-head');
+    head.append(el('span', 'alert-kind', a.kind.replace(/_/g, ' ')));
+    head.append(el('span', 'alert-severity', a.severity));
+    if (withActuator && a.actuator) head.append(el('span', 'alert-actuator', a.actuator));
+    const time = el('time', 'alert-time', clock(a.t_s));
+    time.title = 'message time';
+    head.append(time);
+    li.append(head, el('p', 'alert-text', a.text));
+    return li;
+  }
+
+  // Newest first, by message time.
+  function insertAlert(list, item) {
+    const utime = Number(item.dataset.utime);
+    const before = [...list.children].find((n) => n.dataset.utime !== undefined && Number(n.dataset.utime) < utime);
+    list.insertBefore(item, before || null);
+    while (list.querySelectorAll('.alert').length > MAX_ALERTS) list.lastElementChild.remove();
+  }
+
+  function addAlert(a, live) {
+    const key = [a.utime, a.actuator, a.kind, a.text].join('|');
+    if (alertKeys.has(key)) return;
+    alertKeys.add(key);
+    const global = alertItem(a, true);
+    if (live) global.classList.add('fresh');
+    insertAlert($('alerts'), global);
+    $('alert-count').textContent = String($('alerts').querySelectorAll('.alert').length);
+    if (a.actuator) {
+      const c = card(a.actuator);
+      c.none.hidden = true;
+      const local = alertItem(a, false);
+      if (live) local.classList.add('fresh');
+      insertAlert(c.alerts, local);
+    }
+  }
+
+  function showCounters(counters) {
+    if (!counters) return;
+    $('stats').textContent =
+      'predictions ' + counters.predictions.toLocaleString() +
+      ' · alerts ' + counters.alerts.toLocaleString() +
+      ' · bad messages ' + counters.bad_messages.toLocaleString() +
+      (counters.out_of_order ? ' · out of order ' + counters.out_of_order.toLocaleString() : '');
+  }
+
+  // ---- the stream ---------------------------------------------------------------------
+
+  function applyState(state) {
+    $('bus').textContent = 'bus: ' + state.lcm_url;
+    $('version').textContent = 'flexid ' + state.version;
+    const ids = new Set(state.actuators.map((a) => a.id));
+    for (const [id, c] of cards) {
+      if (!ids.has(id)) {
+        c.root.remove();
+        cards.delete(id);
+      }
+    }
+    for (const a of state.actuators) {
+      const c = card(a.id);
+      clearData(c);
+      c.points = 0;
+      appendColumns(c, a.history);
+      c.modelVersion = a.model_version;
+      c.modelInfo = a.model;
+      showModel(c);
+      setReadout(c, a.latest, a.received, a.trial, a.memberships);
+      c.alerts.querySelectorAll('.alert').forEach((n) => n.remove());
+      c.none.hidden = false;
+    }
+    $('alerts').replaceChildren();
+    alertKeys.clear();
+    for (const a of state.alerts.slice().reverse()) addAlert(a, false);
+    $('alert-count').textContent = String($('alerts').querySelectorAll('.alert').length);
+    $('empty').hidden = cards.size > 0;
+    showCounters(state.counters);
+    scheduleDraw();
+  }
+
+  function onPoints(batch) {
+    for (const a of batch.actuators) {
+      const c = card(a.id);
+      if (a.reset) clearData(c);
+      appendColumns(c, a);
+      setReadout(c, lastOf(a), a.received, a.trial, a.memberships);
+      if (a.model_version !== c.modelVersion) {
+        c.modelVersion = a.model_version;
+        showModel(c);
+      }
+    }
+    showCounters(batch.counters);
+    scheduleDraw();
+  }
+
+  function onModel(m) {
+    const c = card(m.actuator);
+    c.modelInfo = m;
+    if (m.version > c.modelVersion) c.modelVersion = m.version;
+    showModel(c);
+  }
+
+  function setConnection(state, text) {
+    const node = $('connection');
+    node.dataset.state = state;
+    node.textContent = text || state;
+  }
+
+  function reconnect(delayMs) {
+    if (source) {
+      source.close();
+      source = null;
+    }
+    setConnection('reconnecting', 'reconnecting…');
+    clearTimeout(retryTimer);
+    retryTimer = setTimeout(connect, delayMs);
+    retryMs = Math.min(retryMs * 2, 10000);
+  }
+
+  function connect() {
+    setConnection('connecting', 'connecting…');
+    fetch('/api/state', {cache: 'no-store'})
+      .then((response) => {
+        if (!response.ok) throw new Error('state: HTTP ' + response.status);
+        return response.json();
+      })
+      .then((state) => {
+        applyState(state);
+        source = new EventSource('/events?after=' + state.event_id);
+        source.addEventListener('open', () => {
+          retryMs = 1000;
+          setConnection('live', 'live');
+        });
+        source.addEventListener('points', (e) => onPoints(JSON.parse(e.data)));
+        source.addEventListener('alert', (e) => addAlert(JSON.parse(e.data), true));
+        source.addEventListener('model', (e) => onModel(JSON.parse(e.data)));
+        source.addEventListener('resync', () => reconnect(0));
+        source.onerror = () => reconnect(retryMs);
+      })
+      .catch(() => reconnect(retryMs));
+  }
+
+  function start() {
+    const select = $('window');
+    const asked = Number(new URLSearchParams(location.search).get('window_s'));
+    if (asked > 0) {
+      windowS = asked;
+      if (![...select.options].some((o) => Number(o.value) === asked)) {
+        const option = el('option', '', asked + ' s');
+        option.value = String(asked);
+        select.append(option);
+      }
+    }
+    select.value = String(windowS);
+    select.addEventListener('change', () => {
+      windowS = Number(select.value);
+      reconnect(0);  // the snapshot holds more history than a shorter window kept
+    });
+    window.addEventListener('resize', resizeAll);
+    if (window.ResizeObserver) new ResizeObserver(resizeAll).observe($('actuators'));
+    connect();
+  }
+
+  start();
+})();
