@@ -19,6 +19,12 @@ int main(int argc, char** argv) {
   flexid::cli::RegisterIdentifyCommand(app);
   flexid::cli::RegisterDiagnoseCommand(app);
   flexid::cli::RegisterPlotCommand(app);
+  flexid::cli::RegisterStatusCommands(app);
+  flexid::cli::RegisterTrialsCommand(app);
+  flexid::cli::RegisterModelsCommand(app);
+  flexid::cli::RegisterAlertsCommand(app);
+  flexid::cli::RegisterReportCommand(app);
+  flexid::cli::RegisterDbCommand(app);
   flexid::cli::RegisterBusCommands(app);
   app.add_option("--lcm", flexid::cli::LcmUrl(),
                  "LCM URL of the flexidd bus (default udpm://239.255.76.67:7667?ttl=0)");
@@ -29,7 +35,8 @@ int main(int argc, char** argv) {
   } catch (const CLI::Success& e) {
     return app.exit(e);
   } catch (const CLI::ParseError& e) {
-    app.exit(e);
+    // One line, as for every other bad input (CLI11 would add a second, "Run with --help").
+    std::cerr << "flexid: " << e.what() << " (see flexid --help)\n";
     return 2;
   } catch (const flexid::cli::UsageError& e) {
     std::cerr << "flexid: " << e.what() << '\n';

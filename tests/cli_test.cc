@@ -332,9 +332,13 @@ TEST_F(Cli, PlotWritesSvgChartsAndRefusesWhatItCannotDo) {
       svg_of("memberships --model " + kExamples + "/seed-ts.json", "memberships.svg");
   EXPECT_NE(mem.find("8 V"), std::string::npos);
 
-  auto r = Run("plot fit --model " + kExamples + "/seed-8V.json " + rec + " --out x.png");
+  // PNG by the extension (tests/cli_report_test.cc checks the image); others are refused.
+  EXPECT_EQ(
+      svg_of("fit --model " + kExamples + "/seed-8V.json " + rec, "fit.png").rfind("\x89PNG", 0),
+      0u);
+  auto r = Run("plot fit --model " + kExamples + "/seed-8V.json " + rec + " --out x.gif");
   EXPECT_EQ(r.exit_code, 2);
-  EXPECT_NE(r.err.find("SVG"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find(".svg or .png"), std::string::npos) << r.err;
   r = Run("plot bode --model " + kExamples + "/seed-8V.json " + rec + " --out x.svg");
   EXPECT_EQ(r.exit_code, 2);
   r = Run("plot bode --model " + (scratch_.path() / "missing.json").string() + " --out x.svg");

@@ -39,11 +39,19 @@ std::string RandomToken() {
   return text;
 }
 
+// A page of trial samples is up to ~1 MB of JSON, sent as one burst of fragments: a
+// receive buffer that holds a whole reply, so that a busy machine does not drop a fragment
+// (and with it the reply) before this process reads it. As flexidd's own (daemon.cc).
+std::string WithReceiveBuffer(const std::string& url) {
+  if (url.rfind("udpm://", 0) != 0 || url.find("recv_buf_size") != std::string::npos) return url;
+  return url + (url.find('?') == std::string::npos ? "?" : "&") + "recv_buf_size=4194304";
+}
+
 }  // namespace
 
 RpcResult CallDaemon(const std::string& method, const nlohmann::json& args,
                      std::chrono::milliseconds timeout) {
-  lcm::LCM lcm(LcmUrl());
+  lcm::LCM lcm(WithReceiveBuffer(LcmUrl()));
   if (!lcm.good()) throw OperationError("cannot join the LCM bus at " + LcmUrl());
   const std::string client_id = "cli-" + std::to_string(getpid());
   ReplyCatcher catcher{RandomToken(), std::nullopt};
@@ -70,5 +78,26 @@ RpcResult CallDaemon(const std::string& method, const nlohmann::json& args,
   out.result = nlohmann::json::parse(catcher.reply->result_json, nullptr, false);
   return out;
 }
+
+namespace {
+volatile sig_atomic_t stop_signal_received = 0;
+extern "C" void OnStopSignal(int) { stop_signal_received = 1; }
+}  // namespace
+
+StopOnSignal::StopOnSignal() {
+  stop_signal_received = 0;
+  struct sigaction action {};
+  action.sa_handler = OnStopSignal;
+  sigemptyset(&action.sa_mask);
+  sigaction(SIGINT, &action, &previous_interrupt_);
+  sigaction(SIGTERM, &action, &previous_terminate_);
+}
+
+StopOnSignal::~StopOnSignal() {
+  sigaction(SIGINT, &previous_interrupt_, nullptr);
+  sigaction(SIGTERM, &previous_terminate_, nullptr);
+}
+
+bool StopOnSignal::requested() const { return stop_signal_received != 0; }
 
 }  // namespace flexid::cli

@@ -2,6 +2,8 @@
 // and a blocking RPC call to flexidd (DESIGN.md: FLEXID/RPC/REQUEST -> FLEXID/RPC/REPLY/<client>).
 #pragma once
 
+#include <signal.h>
+
 #include <chrono>
 #include <nlohmann/json.hpp>
 #include <string>
@@ -22,5 +24,21 @@ struct RpcResult {
 // answers within the timeout or the bus cannot be joined.
 RpcResult CallDaemon(const std::string& method, const nlohmann::json& args,
                      std::chrono::milliseconds timeout);
+
+// While it exists, SIGINT and SIGTERM only set a flag (requested()) that a long-running bus
+// command polls in its loop, so that it can end cleanly (close what it opened, exit 0 or
+// report). The previous handlers come back in the destructor. One at a time.
+class StopOnSignal {
+ public:
+  StopOnSignal();
+  ~StopOnSignal();
+  StopOnSignal(const StopOnSignal&) = delete;
+  StopOnSignal& operator=(const StopOnSignal&) = delete;
+  bool requested() const;
+
+ private:
+  struct sigaction previous_interrupt_ {};
+  struct sigaction previous_terminate_ {};
+};
 
 }  // namespace flexid::cli

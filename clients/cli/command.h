@@ -27,5 +27,11 @@ void RegisterIdentifyCommand(CLI::App& app);
 void RegisterDiagnoseCommand(CLI::App& app);
 void RegisterPlotCommand(CLI::App& app);
 void RegisterBusCommands(CLI::App& app);
+void RegisterStatusCommands(CLI::App& app);
+void RegisterTrialsCommand(CLI::App& app);
+void RegisterAlertsCommand(CLI::App& app);
+void RegisterModelsCommand(CLI::App& app);
+void RegisterReportCommand(CLI::App& app);
+void RegisterDbCommand(CLI::App& app);
 
 }  // namespace flexid::cli

@@ -1,16 +1,29 @@
 // flexid diagnose REC.csv [--model MODEL.json] [--json] [--report REPORT.html]
 //                         [--out AUGMENTED.json]
+// flexid diagnose --actuator ID [--trial N] [--no-model] [--json] [--timeout S]
+//                                                     (in flexidd, on a stored trial)
+// flexid [--db PATH] diagnose --trial N [--actuator ID] [--model M.json | --no-model]
+//                             [--json] [--report R.html] [--out AUGMENTED.json]
+//                                                     (here, on a stored trial)
 // Where a model and a recording disagree, which physics the model leaves out, a model of
 // it, and the held-out improvement (model/diagnose.h; JSON format in DESIGN.md).
+//
+// Every form prints the same human output from the diagnosis JSON (PrintHuman), so the
+// answer of flexidd and a diagnosis run here read alike. The report and the augmented
+// model need the diagnosis itself (model::Diagnosis), which flexidd does not send: with
+// --report or --out (or --model, or --db) a stored trial is loaded and diagnosed here.
+#include <cmath>
 #include <cstdio>
 #include <iostream>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
 
 #include "clients/cli/command.h"
 #include "clients/cli/diagnosis_report.h"
 #include "clients/cli/format.h"
+#include "clients/cli/source.h"
 #include "model/diagnose.h"
 #include "model/errors.h"
 #include "model/model_file.h"
@@ -20,106 +33,148 @@
 namespace flexid::cli {
 namespace {
 
+using nlohmann::json;
+
 struct DiagnoseArgs {
   std::string recording_path;
   std::string model_path;
   std::string report_path;
   std::string out_path;
   bool json = false;
+  // Stored trials instead of a CSV file.
+  std::string actuator;
+  int64_t trial = 0;
+  bool no_model = false;
+  double timeout_s = 300.0;
 };
 
-std::string Spans(const std::vector<model::TimeSpan>& spans) {
+double NumberOr(const json& object, const char* key, double fallback = NAN) {
+  if (!object.is_object()) return fallback;
+  const auto it = object.find(key);
+  return it != object.end() && it->is_number() ? it->get<double>() : fallback;
+}
+
+std::string Text(const json& object, const char* key) {
+  if (!object.is_object()) return "";
+  const auto it = object.find(key);
+  return it != object.end() && it->is_string() ? it->get<std::string>() : "";
+}
+
+std::string Spans(const json& spans) {
   std::string text;
-  for (const model::TimeSpan& s : spans) {
+  for (const json& s : spans) {
     if (!text.empty()) text += ", ";
-    text += FormatNumber(s.t_start_s, 4) + "-" + FormatNumber(s.t_end_s, 4) + " s";
+    text += FormatNumber(NumberOr(s, "t_start_s"), 4) + "-" +
+            FormatNumber(NumberOr(s, "t_end_s"), 4) + " s";
   }
   return text.empty() ? "-" : text;
 }
 
-std::string Params(const std::vector<model::ParameterEstimate>& params) {
+// "tau_s 12.3 +- 1.1, fraction 0.21" from {"params": {...}, "params_95": {...}}.
+std::string Params(const json& item) {
   std::string text;
-  for (const model::ParameterEstimate& p : params) {
+  const json params = item.value("params", json::object());
+  const json widths = item.value("params_95", json::object());
+  for (const auto& [name, value] : params.items()) {
     if (!text.empty()) text += ", ";
-    text += p.name + " " + FormatNumber(p.value, 3);
-    if (std::isfinite(p.half_width_95) && p.half_width_95 > 0)
-      text += " +- " + FormatNumber(p.half_width_95, 2);
+    text += name + " " + FormatNumber(value.is_number() ? value.get<double>() : NAN, 3);
+    const double width = NumberOr(widths, name.c_str());
+    if (std::isfinite(width) && width > 0) text += " +- " + FormatNumber(width, 2);
   }
   return text;
 }
 
-void PrintHuman(const DiagnoseArgs& args, const model::Diagnosis& d) {
-  std::printf("diagnosis of %s %s\n", args.recording_path.c_str(),
-              d.trusted_model
-                  ? ("against " + args.model_path + " (trusted model)").c_str()
+// The human form of a diagnosis (model::DiagnosisToJson); `subject` names the recording
+// and `against` the trusted model (empty: the baseline was identified on the recording).
+void PrintHuman(const std::string& subject, const std::string& against, const json& d) {
+  const json baseline = d.value("baseline", json::object());
+  std::printf("diagnosis of %s %s\n", subject.c_str(),
+              !against.empty()
+                  ? ("against " + against + " (trusted model)").c_str()
                   : "(baseline identified on the recording: 3 zeros, 4 poles, dead time)");
   std::printf(
       "  baseline: fit %s %%, RMSE %s mm on the fitted samples; held-out RMSE %s mm; "
       "sensor noise ~%s mm\n",
-      FormatNumber(d.baseline_fit_percent, 4).c_str(), FormatNumber(d.baseline_rmse_mm, 3).c_str(),
-      FormatNumber(d.baseline_heldout_rmse_mm, 3).c_str(), FormatNumber(d.noise_std_mm, 2).c_str());
-  std::printf("  held out from every fit: %s\n", Spans(d.heldout).c_str());
-  std::printf("\nverdict: %s\n", d.verdict.c_str());
-  for (const model::Finding& f : d.findings) {
-    std::printf("  %s: %s\n", f.effect.c_str(), f.explanation.c_str());
-    std::printf("    where: %s\n", Spans(f.where).c_str());
-    std::printf("    params: %s\n", Params(f.params).c_str());
+      FormatNumber(NumberOr(baseline, "fit_percent"), 4).c_str(),
+      FormatNumber(NumberOr(baseline, "rmse_mm"), 3).c_str(),
+      FormatNumber(NumberOr(baseline, "heldout_rmse_mm"), 3).c_str(),
+      FormatNumber(NumberOr(d, "noise_std_mm"), 2).c_str());
+  std::printf("  held out from every fit: %s\n", Spans(d.value("heldout", json::array())).c_str());
+  std::printf("\nverdict: %s\n", Text(d, "verdict").c_str());
+  for (const json& f : d.value("findings", json::array())) {
+    std::printf("  %s: %s\n", Text(f, "effect").c_str(), Text(f, "explanation").c_str());
+    std::printf("    where: %s\n", Spans(f.value("where", json::array())).c_str());
+    std::printf("    params: %s\n", Params(f).c_str());
     std::printf("    held-out RMSE: %s -> %s mm\n",
-                FormatNumber(f.heldout_rmse_before_mm, 3).c_str(),
-                FormatNumber(f.heldout_rmse_after_mm, 3).c_str());
+                FormatNumber(NumberOr(f, "heldout_rmse_before_mm"), 3).c_str(),
+                FormatNumber(NumberOr(f, "heldout_rmse_after_mm"), 3).c_str());
   }
   std::printf(
       "\ncandidates (likelihood ratios use the effective sample count of correlated residuals)\n");
   std::printf("  %-24s %5s %11s %11s %10s %10s  %s\n", "effect", "round", "train mm", "held-out mm",
               "LR", "held-out LR", "decision");
-  for (const model::CandidateReport& c : d.candidates) {
-    if (c.reason.rfind("not tried", 0) == 0) {
-      std::printf("  %-24s %5s %11s %11s %10s %10s  %s\n", c.name.c_str(), "-", "-", "-", "-", "-",
-                  c.reason.c_str());
+  for (const json& c : d.value("candidates", json::array())) {
+    const std::string reason = Text(c, "reason");
+    if (reason.rfind("not tried", 0) == 0) {
+      std::printf("  %-24s %5s %11s %11s %10s %10s  %s\n", Text(c, "effect").c_str(), "-", "-", "-",
+                  "-", "-", reason.c_str());
       continue;
     }
-    std::printf("  %-24s %5d %11s %11s %10s %10s  %s\n", c.name.c_str(), c.round,
-                FormatNumber(c.train_rmse_mm, 3).c_str(),
-                FormatNumber(c.heldout_rmse_mm, 3).c_str(),
-                FormatNumber(c.likelihood_ratio, 3).c_str(),
-                FormatNumber(c.heldout_likelihood_ratio, 3).c_str(), c.reason.c_str());
+    std::printf("  %-24s %5d %11s %11s %10s %10s  %s\n", Text(c, "effect").c_str(),
+                static_cast<int>(NumberOr(c, "round", 0)),
+                FormatNumber(NumberOr(c, "train_rmse_mm"), 3).c_str(),
+                FormatNumber(NumberOr(c, "heldout_rmse_mm"), 3).c_str(),
+                FormatNumber(NumberOr(c, "likelihood_ratio"), 3).c_str(),
+                FormatNumber(NumberOr(c, "heldout_likelihood_ratio"), 3).c_str(), reason.c_str());
   }
+  const json localisation = d.value("localisation", json::object());
   std::printf("\nresidual of the baseline (measured - model) by operating condition\n");
   std::printf("  %-10s %-24s %8s %10s %10s\n", "dimension", "group", "samples", "mean mm",
               "RMS mm");
-  for (const model::ResidualGroup& g : d.localisation.groups)
-    std::printf("  %-10s %-24s %8zu %10s %10s\n", g.dimension.c_str(), g.group.c_str(), g.samples,
-                FormatNumber(g.mean_mm, 3).c_str(), FormatNumber(g.rms_mm, 3).c_str());
-  const auto& fit = d.localisation.baseline_fit;
-  if (fit.whiteness.max_lag > 0)
+  for (const json& g : localisation.value("residual_groups", json::array()))
+    std::printf("  %-10s %-24s %8lld %10s %10s\n", Text(g, "dimension").c_str(),
+                Text(g, "group").c_str(), static_cast<long long>(NumberOr(g, "samples", 0)),
+                FormatNumber(NumberOr(g, "mean_mm"), 3).c_str(),
+                FormatNumber(NumberOr(g, "rms_mm"), 3).c_str());
+  const json fit = localisation.value("baseline_fit", json::object());
+  if (const json w = fit.value("whiteness", json()); w.is_object())
     std::printf("  whiteness (Ljung-Box, %d lags): Q = %s, threshold %s: %s\n",
-                fit.whiteness.max_lag, FormatNumber(fit.whiteness.ljung_box_q, 4).c_str(),
-                FormatNumber(fit.whiteness.chi2_threshold, 4).c_str(),
-                fit.whiteness.passed ? "white" : "not white");
-  if (fit.cross_correlation.max_lag > 0)
+                static_cast<int>(NumberOr(w, "max_lag", 0)),
+                FormatNumber(NumberOr(w, "ljung_box_q"), 4).c_str(),
+                FormatNumber(NumberOr(w, "threshold_95"), 4).c_str(),
+                w.value("passed", false) ? "white" : "not white");
+  if (const json c = fit.value("input_residual_correlation", json()); c.is_object())
     std::printf("  input cross-correlation: max %s, bound %s: %s\n",
-                FormatNumber(fit.cross_correlation.max_abs, 3).c_str(),
-                FormatNumber(fit.cross_correlation.bound, 3).c_str(),
-                fit.cross_correlation.passed ? "uncorrelated" : "correlated");
-  for (const std::string& note : d.notes) std::printf("note: %s\n", note.c_str());
+                FormatNumber(NumberOr(c, "max_abs"), 3).c_str(),
+                FormatNumber(NumberOr(c, "bound_95"), 3).c_str(),
+                c.value("passed", false) ? "uncorrelated" : "correlated");
+  for (const json& note : d.value("notes", json::array()))
+    if (note.is_string()) std::printf("note: %s\n", note.get<std::string>().c_str());
 }
 
-void RunDiagnose(const DiagnoseArgs& args) {
-  const model::Recording rec = model::ReadRecordingCsv(args.recording_path);
+// What is diagnosed here: the recording, the trusted model (if any) and their names.
+struct LocalCase {
+  model::Recording recording;
+  std::optional<model::ModelDocument> doc;
+  std::string subject;          // "run.csv", "trial 5 of S1"
+  std::string model_name;       // "s1.json", "S1 model v2"; empty without a model
+  json extra = json::object();  // members added to the JSON (trial, model_version)
+};
+
+// Diagnoses here; writes the report and the augmented model when asked; prints.
+void DiagnoseHere(const DiagnoseArgs& args, const LocalCase& c) {
   std::optional<model::TsModel> trusted;
   model::DiagnoseOptions options;
-  std::optional<model::ModelDocument> doc;
-  if (!args.model_path.empty()) {
-    doc = model::ReadModelFile(args.model_path);
-    trusted = model::AsTsModel(*doc);
-    options.baseline_effects = model::EffectsOf(*doc, args.model_path);
+  if (c.doc) {
+    trusted = model::AsTsModel(*c.doc);
+    options.baseline_effects = model::EffectsOf(*c.doc, c.model_name);
   }
-  const model::Diagnosis d = model::Diagnose(rec, trusted, options);
+  const model::Diagnosis d = model::Diagnose(c.recording, trusted, options);
   if (!args.report_path.empty()) {
     try {
       model::WriteFileAtomically(
           args.report_path,
-          DiagnosisReportHtml(rec, d, "flexid diagnosis of " + args.recording_path));
+          DiagnosisReportHtml(c.recording, d, "flexid diagnosis of " + c.subject));
     } catch (const model::InputError& e) {
       throw OperationError(e.what());
     }
@@ -128,8 +183,8 @@ void RunDiagnose(const DiagnoseArgs& args) {
     // The baseline with the findings' effects as augmentations (the absorbed back-relaxation
     // of a free fit is already inside its local models).
     model::ModelDocument out;
-    if (doc) {
-      out = *doc;
+    if (c.doc) {
+      out = *c.doc;
     } else {
       const model::TsModel& m = d.augmented_baseline_model;
       if (m.rules.size() == 1) {
@@ -142,20 +197,125 @@ void RunDiagnose(const DiagnoseArgs& args) {
     for (const model::Finding& f : d.findings)
       if (f.heldout_rmse_after_mm < f.heldout_rmse_before_mm)
         out.augmentations.push_back(model::AugmentationOf(f.model));
-    out.extra["diagnosis"] = {{"recording", args.recording_path}, {"verdict", d.verdict}};
+    out.extra["diagnosis"] = {{"recording", c.subject}, {"verdict", d.verdict}};
     try {
       model::WriteModelFile(args.out_path, out);
     } catch (const model::InputError& e) {
       throw OperationError(e.what());
     }
   }
+  json j = model::DiagnosisToJson(d);
+  for (const auto& [key, value] : c.extra.items()) j[key] = value;
   if (args.json) {
-    std::cout << model::DiagnosisToJson(d).dump(2) << "\n";
+    std::cout << j.dump(2) << "\n";
     return;
   }
-  PrintHuman(args, d);
+  PrintHuman(c.subject, c.model_name, j);
   if (!args.report_path.empty()) std::printf("report: %s\n", args.report_path.c_str());
   if (!args.out_path.empty()) std::printf("augmented model: %s\n", args.out_path.c_str());
+}
+
+void RunCsv(const DiagnoseArgs& args) {
+  LocalCase c;
+  c.recording = model::ReadRecordingCsv(args.recording_path);
+  c.subject = args.recording_path;
+  if (!args.model_path.empty()) {
+    c.doc = model::ReadModelFile(args.model_path);
+    c.model_name = args.model_path;
+  }
+  DiagnoseHere(args, c);
+}
+
+// The trial flexidd would pick: the latest finished trial of the actuator with at least
+// 200 samples.
+int64_t LatestTrial(const std::string& actuator) {
+  for (const json& t : Query("trials", {{"actuator", actuator}, {"limit", 1000}}))
+    if (t.value("state", "") != "recording" && t.value("samples", int64_t{0}) >= 200)
+      return t.value("id", int64_t{0});
+  throw UsageError(actuator + " has no finished trial to diagnose");
+}
+
+// A stored trial diagnosed here (offline, or online with --report/--out/--model).
+void RunStoredHere(const DiagnoseArgs& args) {
+  const int64_t trial_id = args.trial != 0 ? args.trial : LatestTrial(args.actuator);
+  LocalCase c;
+  StoredTrial trial;
+  {
+    Progress progress("load trial " + std::to_string(trial_id));
+    trial = LoadTrial(trial_id,
+                      [&progress](int64_t done, int64_t total) { progress.Update(done, total); });
+  }
+  const std::string owner = trial.trial.value("actuator", "");
+  if (!args.actuator.empty() && owner != args.actuator)
+    throw UsageError("--trial: trial " + std::to_string(trial_id) + " belongs to " + owner +
+                     ", not " + args.actuator);
+  c.recording = RecordingOf(trial, 200);
+  c.subject = "trial " + std::to_string(trial_id) + " of " + owner;
+  c.extra["trial"] = trial_id;
+  c.extra["model_version"] = 0;
+  if (!args.model_path.empty()) {
+    c.doc = model::ReadModelFile(args.model_path);
+    c.model_name = args.model_path;
+    c.extra["model_file"] = args.model_path;
+  } else if (!args.no_model) {
+    // As flexidd does: the actuator's active model, or the identified baseline without one.
+    int32_t active = 0;
+    for (const json& m : Query("models", {{"actuator", owner}}))
+      if (m.value("active", false)) active = m.value("version", 0);
+    if (active != 0) {
+      c.doc = StoredModel(owner, active);
+      c.model_name = owner + " model v" + std::to_string(active);
+      c.extra["model_version"] = active;
+    }
+  }
+  DiagnoseHere(args, c);
+}
+
+// Online: flexidd diagnoses its stored trial; the reply is the diagnosis JSON plus
+// "trial" and "model_version".
+void RunInDaemon(const DiagnoseArgs& args) {
+  json request = {{"actuator", args.actuator}, {"use_model", !args.no_model}};
+  if (args.trial != 0) request["trial"] = args.trial;
+  Progress progress("diagnose");
+  progress.Note("diagnosing " + args.actuator +
+                (args.trial != 0 ? " trial " + std::to_string(args.trial) : " latest trial") +
+                " in flexidd ...");
+  const json reply = CallOnline("diagnose", request, args.timeout_s);
+  progress.Finish();
+  if (args.json) {
+    std::cout << reply.dump(2) << "\n";
+    return;
+  }
+  const int64_t version = reply.value("model_version", int64_t{0});
+  PrintHuman("trial " + std::to_string(reply.value("trial", int64_t{0})) + " of " + args.actuator,
+             version != 0 ? args.actuator + " model v" + std::to_string(version) : "", reply);
+}
+
+void RunDiagnose(const DiagnoseArgs& args) {
+  const bool stored = !args.actuator.empty() || args.trial != 0;
+  if (!args.recording_path.empty()) {
+    if (stored || args.no_model)
+      throw UsageError(
+          "a REC.csv file cannot be combined with --actuator, --trial or --no-model: "
+          "diagnose either the file or a stored trial");
+    RunCsv(args);
+    return;
+  }
+  if (!stored)
+    throw UsageError(
+        "nothing to diagnose: give a REC.csv file, or --actuator ID / --trial N for "
+        "a stored trial");
+  if (args.trial < 0) throw UsageError("--trial: expected a trial id >= 1");
+  if (!args.model_path.empty() && args.no_model)
+    throw UsageError("--model and --no-model exclude each other");
+  if (!(args.timeout_s > 0.0) || !std::isfinite(args.timeout_s))
+    throw UsageError("--timeout: expected a positive number of seconds");
+  const bool here = Offline() || !args.report_path.empty() || !args.out_path.empty() ||
+                    !args.model_path.empty() || args.actuator.empty();
+  if (here)
+    RunStoredHere(args);
+  else
+    RunInDaemon(args);
 }
 
 }  // namespace
@@ -166,18 +326,34 @@ void RegisterDiagnoseCommand(CLI::App& app) {
       "diagnose",
       "Find where a recording departs from a model, name the missing physics, model it and "
       "measure the improvement on held-out samples");
-  cmd->add_option("RECORDING", args->recording_path, "Recording CSV (t_s,voltage_V,deflection_mm)")
-      ->required();
+  cmd->add_option("RECORDING", args->recording_path, "Recording CSV (t_s,voltage_V,deflection_mm)");
   cmd->add_option("--model", args->model_path,
                   "Trusted model file; without it the seed's structure is identified on the "
-                  "recording");
+                  "recording (a stored trial: the actuator's active model)");
   cmd->add_flag("--json", args->json, "Print the diagnosis as one JSON document");
   cmd->add_option("--report", args->report_path, "Write a self-contained HTML report here");
   cmd->add_option("--out", args->out_path,
                   "Write the model with the findings as augmentations here (flexid.model/1)");
+  cmd->add_option(
+      "--actuator", args->actuator,
+      "Diagnose a stored trial of this actuator (in flexidd unless --db/--report/--out)");
+  cmd->add_option("--trial", args->trial,
+                  "Stored trial id (default: the actuator's latest finished trial)");
+  cmd->add_flag("--no-model", args->no_model,
+                "Stored trial: identify the baseline on the trial instead of using the "
+                "actuator's active model");
+  cmd->add_option("--timeout", args->timeout_s,
+                  "Seconds to wait for flexidd's diagnosis (default 300)");
   cmd->footer(
+      "Stored trials: `--actuator ID` asks flexidd, which diagnoses against the active model.\n"
+      "With --report or --out (which need the diagnosis itself), --model, or --db PATH, the trial\n"
+      "is loaded and diagnosed here, against the trial's actuator's active model unless --model\n"
+      "or --no-model says otherwise. The JSON of a stored trial adds \"trial\" and\n"
+      "\"model_version\" (0: baseline identified on the trial).\n"
       "Examples:\n  flexid diagnose run.csv --model examples/seed-8V.json --report run.html\n"
-      "  flexid diagnose run.csv --json");
+      "  flexid diagnose run.csv --json\n"
+      "  flexid diagnose --actuator S1 --trial 4\n"
+      "  flexid --db var/flexid.db diagnose --trial 4 --report trial4.html");
   cmd->callback([args] { RunDiagnose(*args); });
 }
 

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include "clients/cli/format.h"
@@ -28,7 +29,11 @@ h2 { font-size: 1.2em; margin-top: 1.8em; border-bottom: 1px solid #ccc; }
 .meta, .caption { color: #555; font-size: 0.92em; }
 .verdict { border-left: 6px solid #d95f02; background: #fff4ec; padding: 0.6em 1em; }
 .verdict.none { border-left-color: #2e7d32; background: #eef7ee; }
-.verdict h2 { border: none; margin-top: 0.2em; }
+.verdict h2, .verdict h3 { border: none; margin-top: 0.2em; }
+h3 { font-size: 1.05em; margin-top: 1.4em; }
+nav ul { margin: 0.3em 0; padding-left: 1.2em; }
+.bode { display: flex; flex-wrap: wrap; gap: 0 16px; }
+.bode svg { flex: 1 1 440px; }
 table { border-collapse: collapse; margin: 0.6em 0; font-size: 0.92em; }
 th, td { border: 1px solid #ccc; padding: 0.25em 0.55em; vertical-align: top; }
 th { background: #f2f2f2; text-align: left; }
@@ -290,8 +295,14 @@ std::string LocalisationSection(const model::Diagnosis& diagnosis) {
   const model::FitFigures& fit = where.baseline_fit;
   html += "<h2>Residual tests (baseline, training samples)</h2>\n";
   html += "<p>" + std::to_string(fit.samples) + " samples, fit " + Number(fit.fit_percent) +
-          " %, RMSE " + Number(fit.rmse_mm) + " mm.</p>\n<table>\n" +
-          HeaderRow({"test", "statistic", "threshold", "result"});
+          " %, RMSE " + Number(fit.rmse_mm) + " mm.</p>\n";
+  return html + ResidualTestsTableHtml(fit);
+}
+
+}  // namespace
+
+std::string ResidualTestsTableHtml(const model::FitFigures& fit) {
+  std::string html = "<table>\n" + HeaderRow({"test", "statistic", "threshold", "result"});
   const model::WhitenessTest& white = fit.whiteness;
   if (white.max_lag > 0) {
     html +=
@@ -319,6 +330,8 @@ std::string LocalisationSection(const model::Diagnosis& diagnosis) {
   }
   return html + "</table>\n";
 }
+
+namespace {
 
 std::string AbsorbedSection(const model::Diagnosis& diagnosis) {
   std::string html = "<h2>What a free fit absorbed</h2>\n";
@@ -361,14 +374,26 @@ std::string RecordingSummary(const model::Recording& recording) {
 
 }  // namespace
 
-std::string DiagnosisReportHtml(const model::Recording& recording,
-                                const model::Diagnosis& diagnosis, const std::string& title) {
+std::string HtmlPageStart(const std::string& title) {
   std::string html;
   html += "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n";
   html += "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n";
   html += "<title>" + Html(title) + "</title>\n<style>" + kStyle + "</style>\n</head>\n<body>\n";
   html += "<h1>" + Html(title) + "</h1>\n";
-  html += RecordingSummary(recording);
+  return html;
+}
+
+std::string HtmlPageEnd() {
+  return "<p class=\"meta\">flexid " + Html(kVersion) + "</p>\n</body>\n</html>\n";
+}
+
+std::string RecordingSummaryHtml(const model::Recording& recording) {
+  return RecordingSummary(recording);
+}
+
+std::string DiagnosisSectionsHtml(const model::Recording& recording,
+                                  const model::Diagnosis& diagnosis, int heading_level) {
+  std::string html;
   html += Headline(diagnosis);
   html += Plots(recording, diagnosis);
   html += FindingsTable(diagnosis);
@@ -376,8 +401,23 @@ std::string DiagnosisReportHtml(const model::Recording& recording,
   html += LocalisationSection(diagnosis);
   html += AbsorbedSection(diagnosis);
   html += NotesSection(diagnosis);
-  html += "<p class=\"meta\">flexid " + Html(kVersion) + "</p>\n</body>\n</html>\n";
+  if (heading_level != 2) {
+    // The sections write <h2>; every text inside is escaped, so these tags are ours.
+    const std::string level = std::to_string(std::clamp(heading_level, 1, 6));
+    for (const auto& [from, to] : {std::pair<std::string, std::string>{"<h2>", "<h" + level + ">"},
+                                   {"</h2>", "</h" + level + ">"}}) {
+      for (size_t at = html.find(from); at != std::string::npos;
+           at = html.find(from, at + to.size()))
+        html.replace(at, from.size(), to);
+    }
+  }
   return html;
+}
+
+std::string DiagnosisReportHtml(const model::Recording& recording,
+                                const model::Diagnosis& diagnosis, const std::string& title) {
+  return HtmlPageStart(title) + RecordingSummary(recording) +
+         DiagnosisSectionsHtml(recording, diagnosis) + HtmlPageEnd();
 }
 
 }  // namespace flexid::cli

@@ -13,14 +13,35 @@
 //  - the residual broken down by operating condition, the baseline residual's whiteness
 //    and input cross-correlation tests, what a free fit absorbed, and the notes.
 // Every string taken from the recording or the diagnosis is HTML-escaped.
+//
+// The pieces below build other pages in the same style (`flexid report`).
 #pragma once
 
 #include <string>
 
 #include "model/diagnose.h"
+#include "model/identify.h"
 #include "model/recording.h"
 
 namespace flexid::cli {
+
+// "<!DOCTYPE html> ... <body><h1>title</h1>": the head with the inline CSS, title escaped.
+std::string HtmlPageStart(const std::string& title);
+
+// The version line and the closing tags.
+std::string HtmlPageEnd();
+
+// One line: the recording's source, samples, duration and voltage range.
+std::string RecordingSummaryHtml(const model::Recording& recording);
+
+// The diagnosis sections listed above (verdict to notes), with headings at heading_level
+// (2: <h2>; 3 nests them under a page's own <h2>).
+std::string DiagnosisSectionsHtml(const model::Recording& recording,
+                                  const model::Diagnosis& diagnosis, int heading_level = 2);
+
+// The whiteness and input cross-correlation tests of a fit as a table: statistic,
+// threshold and pass or fail ("not computed" when the fit has none).
+std::string ResidualTestsTableHtml(const model::FitFigures& fit);
 
 // The page; `title` heads it (escaped). Series shorter than the recording are drawn over
 // the samples they cover.

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <ctime>
 #include <iostream>
 
 namespace flexid::cli {
@@ -52,6 +53,27 @@ std::string FormatPolynomial(const std::vector<double>& coefficients) {
     }
   }
   return text.empty() ? "0" : text;
+}
+
+std::string FormatUtcTime(int64_t utime) {
+  constexpr int64_t kPerSecond = 1'000'000;
+  int64_t seconds = utime / kPerSecond;
+  int64_t micros = utime % kPerSecond;
+  if (micros < 0) {  // floor, for times before 1970
+    micros += kPerSecond;
+    --seconds;
+  }
+  const auto time = static_cast<std::time_t>(seconds);
+  std::tm parts{};
+  if (gmtime_r(&time, &parts) == nullptr) return std::to_string(utime) + " us";
+  char text[64];
+  size_t length = std::strftime(text, sizeof text, "%Y-%m-%dT%H:%M:%S", &parts);
+  if (micros != 0) {
+    length += static_cast<size_t>(std::snprintf(text + length, sizeof text - length, ".%06lld",
+                                                static_cast<long long>(micros)));
+    while (text[length - 1] == '0') --length;
+  }
+  return std::string(text, length) + "Z";
 }
 
 void Table::Print(std::ostream& out, const std::string& indent) const {

@@ -18,6 +18,10 @@ std::string FormatComplex(std::complex<double> value, int significant = 6);
 // Polynomial in s, highest power first: "0.0085 s^3 + 0.842 s^2 + 1.924 s + 1.97".
 std::string FormatPolynomial(const std::vector<double>& coefficients);
 
+// A utime (microseconds since 1970-01-01 UTC) as ISO-8601 UTC: "2023-11-14T22:13:20Z", with
+// the fraction of a second when there is one ("2023-11-14T22:13:20.25Z").
+std::string FormatUtcTime(int64_t utime);
+
 // Columns aligned to their widest cell; numbers are right-aligned, text left-aligned.
 class Table {
  public:

@@ -1,4 +1,8 @@
 // flexid identify REC.csv [REC2.csv ...] [--out MODEL.json] [--json] [--validate VAL.csv]
+// flexid identify --actuator ID [--trials 3,4 | --latest N] [--json] [--out MODEL.json]
+//                 [--timeout S]                      (in flexidd: stores a new active version)
+// flexid --db PATH identify (--trials 3,4 | --actuator ID [--latest N]) [...]
+//                                                    (here, on stored trials; nothing stored)
 //
 // Finds the voltage levels, fits one local transfer function with dead time per level
 // and assembles the T-S model (model/identify_ts.h); or, with --structure physics, fits
@@ -14,6 +18,7 @@
 
 #include "clients/cli/command.h"
 #include "clients/cli/format.h"
+#include "clients/cli/source.h"
 #include "flexid/version.h"
 #include "model/errors.h"
 #include "model/frequency_response.h"
@@ -41,6 +46,15 @@ struct IdentifyArgs {
   std::string method = "time";
   std::string geometry_mm = "40x8x2";
   std::string predict_geometry_mm;
+  // Stored trials instead of CSV files.
+  std::string actuator;
+  std::string trials_text;
+  std::optional<int> latest;
+  double timeout_s = 300.0;
+  CLI::App* command = nullptr;  // to see which options were given
+  // What the recordings are called in the model file's identified_from.
+  std::vector<std::string> names;
+  std::vector<int64_t> trial_ids;
 };
 
 json Number(double value) { return std::isfinite(value) ? json(value) : json(nullptr); }
@@ -254,14 +268,13 @@ void RunPhysics(const IdentifyArgs& args, model::ModelDocument* doc,
       return p;
     };
     doc->extra["prediction"] = {{"geometry_mm", args.predict_geometry_mm},
-                                {"recording", args.recordings.front()},
+                                {"recording", args.names.front()},
                                 {"peak_deflection_mm", peak(y)},
                                 {"peak_deflection_fitted_geometry_mm", peak(y_here)}};
     if (!args.as_json)
       std::cout << "  prediction for " << args.predict_geometry_mm << " mm under "
-                << args.recordings.front() << "'s voltage: peak deflection "
-                << FormatNumber(peak(y), 4) << " mm (fitted beam: " << FormatNumber(peak(y_here), 4)
-                << " mm)\n";
+                << args.names.front() << "'s voltage: peak deflection " << FormatNumber(peak(y), 4)
+                << " mm (fitted beam: " << FormatNumber(peak(y_here), 4) << " mm)\n";
   }
   AddValidation(args, model::SingleRule(deflection), doc);
 }
@@ -303,7 +316,7 @@ void RunFrequency(const IdentifyArgs& args, model::ModelDocument* doc,
   AddValidation(args, model::SingleRule(fit.tf), doc);
 }
 
-void RunIdentify(const IdentifyArgs& args) {
+void CheckOptions(const IdentifyArgs& args) {
   if (args.structure != "free" && args.structure != "physics")
     throw UsageError("--structure: expected free or physics, got \"" + args.structure + "\"");
   if (args.method != "time" && args.method != "frequency")
@@ -316,7 +329,10 @@ void RunIdentify(const IdentifyArgs& args) {
     throw UsageError("--delay must be finite and >= 0");
   if (args.poles < 1 || args.poles > 8 || args.zeros < 0 || args.zeros >= args.poles)
     throw UsageError("orders: need 1 <= --poles <= 8 and 0 <= --zeros < --poles");
-  const std::vector<model::Recording> recordings = ReadAll(args.recordings, true);
+}
+
+// Identification here, on recordings (CSV files or stored trials).
+void RunLocal(const IdentifyArgs& args, const std::vector<model::Recording>& recordings) {
   model::ModelDocument doc;
   if (args.structure == "physics")
     RunPhysics(args, &doc, recordings);
@@ -324,9 +340,173 @@ void RunIdentify(const IdentifyArgs& args) {
     RunFrequency(args, &doc, recordings);
   else
     RunFree(args, &doc, recordings);
-  doc.extra["identified_from"] = args.recordings;
+  doc.extra["identified_from"] = args.names;
+  if (!args.trial_ids.empty()) doc.extra["identified_from_trials"] = args.trial_ids;
   doc.extra["flexid_version"] = kVersion;
   Emit(args, doc);
+}
+
+// "3,4" -> {3, 4}.
+std::vector<int64_t> ParseTrialIds(const std::string& text) {
+  std::vector<int64_t> ids;
+  size_t start = 0;
+  while (true) {
+    const size_t comma = text.find(',', start);
+    const std::string item = text.substr(start, comma == std::string::npos ? comma : comma - start);
+    const bool digits = !item.empty() && item.size() <= 18 &&
+                        item.find_first_not_of("0123456789") == std::string::npos;
+    if (!digits || std::stoll(item) < 1)
+      throw UsageError("--trials: expected trial ids such as 3,4, got \"" + text + "\"");
+    ids.push_back(std::stoll(item));
+    if (comma == std::string::npos) break;
+    start = comma + 1;
+  }
+  return ids;
+}
+
+// Offline: the latest `count` finished trials of an actuator with enough samples.
+std::vector<int64_t> LatestTrials(const std::string& actuator, int count) {
+  std::vector<int64_t> ids;
+  for (const json& t : Query("trials", {{"actuator", actuator}, {"limit", 1000}})) {
+    if (t.value("state", "") == "recording" || t.value("samples", int64_t{0}) < 100) continue;
+    ids.push_back(t.value("id", int64_t{0}));
+    if (static_cast<int>(ids.size()) == count) break;
+  }
+  if (ids.empty())
+    throw UsageError(actuator + " has no finished trial long enough to identify from in " +
+                     DbPath());
+  return ids;
+}
+
+std::string JoinIds(const std::vector<int64_t>& ids) {
+  std::string text;
+  for (int64_t id : ids) text += (text.empty() ? "" : ", ") + std::to_string(id);
+  return text;
+}
+
+// Online: flexidd identifies on its stored trials and stores the result as a new active
+// version; the reply (sent when the fit ends) is the stored record with the model.
+void RunInDaemon(IdentifyArgs args) {
+  for (const char* option : {"--validate", "--zeros", "--poles", "--max-delay", "--delay",
+                             "--structure", "--method", "--geometry", "--predict-geometry"})
+    if (args.command->count(option) > 0)
+      throw UsageError(std::string(option) +
+                       " applies to identification here (REC.csv files, or --db); flexidd "
+                       "identifies with the orders of its configuration");
+  json request = {{"actuator", args.actuator}};
+  std::string which;
+  if (!args.trial_ids.empty()) {
+    request["trials"] = args.trial_ids;
+    which = "trials " + JoinIds(args.trial_ids);
+  } else {
+    if (args.latest) request["latest"] = *args.latest;
+    which = args.latest ? "the latest " + std::to_string(*args.latest) + " trials"
+                        : "its latest trials";
+  }
+  Progress progress("identify");
+  progress.Note("identifying " + args.actuator + " in flexidd on " + which + " ...");
+  const json reply = CallOnline("identify", request, args.timeout_s);
+  progress.Finish();
+  const std::string name =
+      args.actuator + " model v" + std::to_string(reply.value("version", int64_t{0}));
+  const model::ModelDocument doc = model::ParseModelJson(reply.at("model").dump(), name);
+  if (!args.out.empty()) {
+    try {
+      model::WriteModelFile(args.out, doc);
+    } catch (const model::InputError& e) {
+      throw OperationError(e.what());
+    }
+  }
+  if (args.as_json) {
+    std::cout << reply.dump(2) << "\n";
+    return;
+  }
+  std::vector<int64_t> used;
+  for (const json& id : reply.value("trials", json::array())) used.push_back(id.get<int64_t>());
+  std::cout << name << " identified in flexidd from trials " << JoinIds(used)
+            << " and made active\n";
+  const json fit = reply.value("fit", json());
+  auto number = [](const json& object, const char* key) {
+    return object.is_object() && object.contains(key) && object[key].is_number()
+               ? object[key].get<double>()
+               : NAN;
+  };
+  auto cell = [](double value, int significant) {
+    return std::isfinite(value) ? FormatNumber(value, significant) : std::string("-");
+  };
+  std::cout << "  " << (doc.kind == model::ModelDocument::Kind::kTsFuzzy ? "T-S blend" : "model")
+            << ": fit " << cell(number(fit, "fit_percent"), 4) << " %, RMSE "
+            << cell(number(fit, "rmse_mm"), 4) << " mm on " << cell(number(fit, "samples"), 9)
+            << " samples\n";
+  Table table({"level V", "fit %", "RMSE mm", "DC gain mm/V", "dead time s"});
+  if (doc.kind == model::ModelDocument::Kind::kTsFuzzy) {
+    for (size_t i = 0; i < doc.ts.rules.size(); ++i) {
+      const json local_fit = i < doc.local_extra.size() && doc.local_extra[i].is_object()
+                                 ? doc.local_extra[i].value("fit", json())
+                                 : json();
+      const model::TransferFunction& tf = doc.ts.rules[i].tf;
+      table.AddRow(
+          {FormatNumber(doc.ts.rules[i].level_V, 4), cell(number(local_fit, "fit_percent"), 4),
+           cell(number(local_fit, "rmse_mm"), 4), cell(model::DcGain(tf), 5), cell(tf.delay_s, 4)});
+    }
+  } else {
+    table.AddRow({cell(number(doc.extra, "level_V"), 4), cell(number(fit, "fit_percent"), 4),
+                  cell(number(fit, "rmse_mm"), 4), cell(model::DcGain(doc.tf), 5),
+                  cell(doc.tf.delay_s, 4)});
+  }
+  table.Print(std::cout);
+  std::cout << "  (flexid models show --actuator " << args.actuator << " --version "
+            << reply.value("version", int64_t{0}) << " for the poles and zeros)\n";
+  if (!args.out.empty()) std::cout << "wrote " << args.out << "\n";
+}
+
+void RunIdentify(IdentifyArgs args) {
+  if (!args.recordings.empty()) {
+    if (!args.actuator.empty() || !args.trials_text.empty() || args.latest)
+      throw UsageError(
+          "REC.csv files cannot be combined with --actuator, --trials or --latest: "
+          "identify either the files or stored trials");
+    CheckOptions(args);
+    args.names = args.recordings;
+    RunLocal(args, ReadAll(args.recordings, true));
+    return;
+  }
+  if (!args.trials_text.empty()) args.trial_ids = ParseTrialIds(args.trials_text);
+  if (!args.trial_ids.empty() && args.latest)
+    throw UsageError("--trials and --latest exclude each other");
+  if (args.latest && (*args.latest < 1 || *args.latest > 100))
+    throw UsageError("--latest: expected 1-100 trials, got " + std::to_string(*args.latest));
+  if (!(args.timeout_s > 0.0) || !std::isfinite(args.timeout_s))
+    throw UsageError("--timeout: expected a positive number of seconds");
+  if (!Offline()) {
+    if (args.actuator.empty())
+      throw UsageError(args.trial_ids.empty()
+                           ? "nothing to identify: give REC.csv files, or --actuator ID to "
+                             "identify in flexidd (or --db PATH --trials 3,4 to identify here)"
+                           : "--trials: identification in flexidd needs --actuator ID");
+    RunInDaemon(args);
+    return;
+  }
+  // Offline: stored trials identified here, exactly as CSV files would be.
+  CheckOptions(args);
+  if (args.trial_ids.empty()) {
+    if (args.actuator.empty())
+      throw UsageError("--db: name the trials (--trials 3,4) or the actuator (--actuator ID)");
+    args.trial_ids = LatestTrials(args.actuator, args.latest.value_or(2));
+  }
+  std::vector<model::Recording> recordings;
+  for (int64_t id : args.trial_ids) {
+    Progress progress("load trial " + std::to_string(id));
+    const StoredTrial trial =
+        LoadTrial(id, [&progress](int64_t done, int64_t total) { progress.Update(done, total); });
+    const std::string owner = trial.trial.value("actuator", "");
+    if (!args.actuator.empty() && owner != args.actuator)
+      throw UsageError("--trials: trial " + std::to_string(id) + " belongs to " + owner + ", not " +
+                       args.actuator);
+    recordings.push_back(RecordingOf(trial, 100));
+    args.names.push_back(recordings.back().source);
+  }
+  RunLocal(args, recordings);
 }
 
 }  // namespace
@@ -335,8 +515,14 @@ void RegisterIdentifyCommand(CLI::App& app) {
   auto args = std::make_shared<IdentifyArgs>();
   CLI::App* cmd =
       app.add_subcommand("identify", "Identify per-voltage transfer functions and their T-S blend");
-  cmd->add_option("RECORDING", args->recordings, "Recording CSVs (t_s,voltage_V,deflection_mm)")
-      ->required();
+  cmd->add_option("RECORDING", args->recordings, "Recording CSVs (t_s,voltage_V,deflection_mm)");
+  cmd->add_option("--actuator", args->actuator,
+                  "Identify this actuator in flexidd on its stored trials (a new active version)");
+  cmd->add_option("--trials", args->trials_text, "Stored trial ids, e.g. 3,4");
+  cmd->add_option("--latest", args->latest,
+                  "Use the latest N finished trials (flexidd's default: its configuration)");
+  cmd->add_option("--timeout", args->timeout_s,
+                  "Seconds to wait for flexidd's identification (default 300)");
   cmd->add_option("--out", args->out, "Write the model file here");
   cmd->add_flag("--json", args->as_json, "Print the model file document (with fit figures)");
   cmd->add_option("--validate", args->validate, "Recordings to validate on (not fitted)");
@@ -354,11 +540,18 @@ void RegisterIdentifyCommand(CLI::App& app) {
       "--predict-geometry", args->predict_geometry_mm,
       "With --structure physics: predict a beam of this LxWxh (mm) of the same material");
   cmd->footer(
+      "Stored trials: with --actuator (no --db) flexidd identifies and stores the result as a\n"
+      "new active model version. With --db PATH the trials are read from the file and\n"
+      "identified here, exactly like CSV files; the model is NOT stored in the database (use\n"
+      "--out to keep it).\n"
       "Examples:\n"
       "  flexid identify run-2V.csv run-8V.csv --out s1.json --validate check.csv\n"
+      "  flexid identify --actuator S1 --latest 2\n"
+      "  flexid --db var/flexid.db identify --trials 3,4 --out s1.json\n"
       "  flexid identify staircase.csv --json > model.json\n"
       "  flexid identify square-5V.csv --structure physics --geometry 40x8x2 --predict-geometry "
       "20x8x2");
+  args->command = cmd;
   cmd->callback([args] { RunIdentify(*args); });
 }
 

@@ -41,19 +41,9 @@ std::string ActuatorArg(const nlohmann::json& args, bool required) {
   return it->get<std::string>();
 }
 
-storage::Database OpenFile() {
-  try {
-    if (!std::filesystem::exists(DbPath()))
-      throw OperationError(DbPath() + ": no such database file");
-    return storage::Database::Open(DbPath());
-  } catch (const storage::StorageError& e) {
-    throw OperationError(e.what());
-  }
-}
-
 // Offline answers, in the daemon's shapes (daemon/daemon.cc HandleRequest).
 nlohmann::json QueryFile(const std::string& method, const nlohmann::json& args) {
-  storage::Database db = OpenFile();
+  storage::Database db = OpenDbFile();
   auto known_actuator = [&db](const std::string& id) {
     if (!db.FindActuator(id)) throw UsageError("unknown actuator \"" + id + "\" in " + DbPath());
     return id;
@@ -162,6 +152,17 @@ nlohmann::json QueryDaemon(const std::string& method, const nlohmann::json& args
 
 }  // namespace
 
+storage::Database OpenDbFile() {
+  if (!Offline()) throw UsageError("this command reads a database file: give --db PATH");
+  try {
+    if (!std::filesystem::exists(DbPath()))
+      throw OperationError(DbPath() + ": no such database file");
+    return storage::Database::Open(DbPath());
+  } catch (const storage::StorageError& e) {
+    throw OperationError(e.what());
+  }
+}
+
 nlohmann::json Query(const std::string& method, const nlohmann::json& args, double timeout_s) {
   if (!Offline()) return QueryDaemon(method, args, timeout_s);
   try {
@@ -181,6 +182,29 @@ StoredTrial LoadTrial(int64_t trial_id,
                       const std::function<void(int64_t done, int64_t total)>& progress) {
   constexpr int64_t kPage = 20000;  // the daemon's largest page
   StoredTrial out;
+  if (Offline()) {  // straight from the file, without a JSON round trip per page
+    try {
+      storage::Database db = OpenDbFile();
+      const auto trial = db.FindTrial(trial_id);
+      if (!trial) throw UsageError("no trial " + std::to_string(trial_id) + " in " + DbPath());
+      out.trial = storage::TrialJson(*trial);
+      int64_t after = INT64_MIN;
+      while (true) {
+        const std::vector<storage::Sample> page = db.SamplesPage(trial_id, after, 0, kPage);
+        for (const storage::Sample& s : page) {
+          out.utime.push_back(s.utime);
+          out.voltage_V.push_back(s.voltage_V);
+          out.deflection_mm.push_back(s.deflection_mm);
+        }
+        if (progress) progress(static_cast<int64_t>(out.utime.size()), trial->samples);
+        if (static_cast<int64_t>(page.size()) < kPage) break;
+        after = out.utime.back();
+      }
+      return out;
+    } catch (const storage::StorageError& e) {
+      throw OperationError(e.what());
+    }
+  }
   int64_t after = INT64_MIN;
   while (true) {
     const nlohmann::json page =
@@ -218,6 +242,14 @@ model::Recording RecordingOf(const StoredTrial& trial, size_t min_samples) {
     rec.deflection_mm.push_back(trial.deflection_mm[k]);
   }
   return rec;
+}
+
+model::ModelDocument StoredModel(const std::string& actuator, int32_t version) {
+  nlohmann::json args = {{"actuator", actuator}};
+  if (version != 0) args["version"] = version;
+  const nlohmann::json reply = Query("model", args);
+  const std::string name = actuator + " model v" + std::to_string(reply.value("version", version));
+  return model::ParseModelJson(reply.at("model").dump(), name);
 }
 
 }  // namespace flexid::cli

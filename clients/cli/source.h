@@ -16,7 +16,9 @@
 #include <string>
 #include <vector>
 
+#include "model/model_file.h"
 #include "model/recording.h"
+#include "storage/database.h"
 
 namespace flexid::cli {
 
@@ -26,6 +28,10 @@ inline bool Offline() { return !DbPath().empty(); }
 
 // Seconds to wait for flexidd's reply to a read-only request.
 inline constexpr double kQueryTimeout_s = 10.0;
+
+// The --db file, opened for an offline command. Throws UsageError without --db and
+// OperationError when the file is missing or is not a flexid database.
+storage::Database OpenDbFile();
 
 // A read-only request, answered by flexidd or (offline) from the --db file. Throws
 // UsageError for a bad request or something that does not exist (exit 2), OperationError
@@ -52,5 +58,9 @@ StoredTrial LoadTrial(int64_t trial_id,
 // The trial as a recording, t_s from its first sample; source "trial ID". Throws UsageError
 // when it has fewer than min_samples samples.
 model::Recording RecordingOf(const StoredTrial& trial, size_t min_samples = 2);
+
+// A stored model of an actuator (version 0: the active one) as a model document; its
+// source name is "S1 model v3". Throws UsageError when there is no such model.
+model::ModelDocument StoredModel(const std::string& actuator, int32_t version = 0);
 
 }  // namespace flexid::cli

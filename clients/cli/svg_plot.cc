@@ -56,16 +56,6 @@ void DrawnPoints(const Series& series, std::vector<double>* x, std::vector<doubl
   }
 }
 
-struct LegendEntry {
-  std::string label;
-  std::string colour;
-  bool is_span = false;
-  bool dashed = false;
-  double opacity = 1.0;
-  double x_px = 0.0;  // set by the layout
-  int row = 0;
-};
-
 std::vector<LegendEntry> LegendEntries(const Chart& chart) {
   std::vector<LegendEntry> entries;
   for (const auto& series : chart.series)
@@ -224,17 +214,21 @@ std::vector<size_t> DecimateMinMax(std::span<const double> x, std::span<const do
   return kept;
 }
 
-std::string RenderSvg(const Chart& chart, int width_px, int height_px) {
-  const double width = std::max(width_px, kMinSizePx);
-  const double height = std::max(height_px, kMinSizePx);
+double ChartLayout::LegendRowPx(int row) const { return bottom + 50.0 + kLegendRowPx * row; }
 
-  // Layout: title on top, tick labels and the y label left, tick labels, the x label and
-  // the legend below the plot area.
-  const double left = 72.0, right = width - 16.0;
-  const double top = chart.title.empty() ? 12.0 : 32.0;
-  std::vector<LegendEntry> legend = LegendEntries(chart);
-  const int legend_rows = LayoutLegend(&legend, left, right - left);
-  const double bottom = std::max(top + 40.0, height - 46.0 - kLegendRowPx * legend_rows);
+ChartLayout LayoutChart(const Chart& chart, int width_px, int height_px) {
+  ChartLayout layout;
+  layout.width = std::max(width_px, kMinSizePx);
+  layout.height = std::max(height_px, kMinSizePx);
+
+  // Title on top, tick labels and the y label left, tick labels, the x label and the
+  // legend below the plot area.
+  layout.left = 72.0;
+  layout.right = layout.width - 16.0;
+  layout.top = chart.title.empty() ? 12.0 : 32.0;
+  layout.legend = LegendEntries(chart);
+  const int legend_rows = LayoutLegend(&layout.legend, layout.left, layout.right - layout.left);
+  layout.bottom = std::max(layout.top + 40.0, layout.height - 46.0 - kLegendRowPx * legend_rows);
 
   // Axis ranges. y: from the first to the last tick around the finite data. x (usually
   // time): the data range itself, with the ticks that fall inside it.
@@ -249,19 +243,48 @@ std::string RenderSvg(const Chart& chart, int width_px, int height_px) {
   }
   if (x_data.Empty()) x_data = {0.0, 1.0};
   if (y_data.Empty()) y_data = {0.0, 1.0};
-  std::vector<double> x_ticks =
-      NiceTicks(x_data.low, x_data.high, std::max(2, static_cast<int>((right - left) / 110.0)));
-  if (x_data.low == x_data.high) x_data = {x_ticks.front(), x_ticks.back()};
+  layout.x_ticks = NiceTicks(x_data.low, x_data.high,
+                             std::max(2, static_cast<int>((layout.right - layout.left) / 110.0)));
+  if (x_data.low == x_data.high) x_data = {layout.x_ticks.front(), layout.x_ticks.back()};
   const double x_tolerance = 1e-9 * (x_data.high - x_data.low);
-  std::erase_if(x_ticks, [&](double t) {
+  std::erase_if(layout.x_ticks, [&](double t) {
     return t < x_data.low - x_tolerance || t > x_data.high + x_tolerance;
   });
-  const std::vector<double> y_ticks =
-      NiceTicks(y_data.low, y_data.high, std::max(4, static_cast<int>((bottom - top) / 55.0)));
-  const double x_low = x_data.low, x_high = x_data.high;
-  const double y_low = y_ticks.front(), y_high = y_ticks.back();
-  auto to_px_x = [&](double v) { return left + (v - x_low) / (x_high - x_low) * (right - left); };
-  auto to_px_y = [&](double v) { return bottom - (v - y_low) / (y_high - y_low) * (bottom - top); };
+  layout.y_ticks = NiceTicks(y_data.low, y_data.high,
+                             std::max(4, static_cast<int>((layout.bottom - layout.top) / 55.0)));
+  layout.x_low = x_data.low;
+  layout.x_high = x_data.high;
+  layout.y_low = layout.y_ticks.front();
+  layout.y_high = layout.y_ticks.back();
+  return layout;
+}
+
+std::vector<std::vector<PointPx>> SeriesPolylines(const Series& series, const ChartLayout& layout) {
+  std::vector<double> xs, ys;
+  DrawnPoints(series, &xs, &ys);
+  std::vector<std::vector<PointPx>> lines;
+  bool pen_down = false;
+  for (const size_t i : DecimateMinMax(xs, ys)) {
+    if (!IsFinitePoint(xs[i], ys[i])) {
+      pen_down = false;
+      continue;
+    }
+    if (!pen_down) lines.emplace_back();
+    lines.back().push_back({layout.XPx(xs[i]), layout.YPx(ys[i])});
+    pen_down = true;
+  }
+  return lines;
+}
+
+std::string RenderSvg(const Chart& chart, int width_px, int height_px) {
+  const ChartLayout layout = LayoutChart(chart, width_px, height_px);
+  const double width = layout.width, height = layout.height;
+  const double left = layout.left, right = layout.right, top = layout.top, bottom = layout.bottom;
+  const double x_low = layout.x_low, x_high = layout.x_high;
+  const std::vector<double>& x_ticks = layout.x_ticks;
+  const std::vector<double>& y_ticks = layout.y_ticks;
+  auto to_px_x = [&](double v) { return layout.XPx(v); };
+  auto to_px_y = [&](double v) { return layout.YPx(v); };
 
   std::string svg;
   svg += "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"" + Px(width) + "\" height=\"" +
@@ -310,19 +333,13 @@ std::string RenderSvg(const Chart& chart, int width_px, int height_px) {
   }
 
   // Series: one path each; a non-finite point lifts the pen.
-  std::vector<double> xs, ys;
   for (const auto& series : chart.series) {
-    DrawnPoints(series, &xs, &ys);
     std::string d;
-    bool pen_down = false;
-    for (const size_t i : DecimateMinMax(xs, ys)) {
-      if (!IsFinitePoint(xs[i], ys[i])) {
-        pen_down = false;
-        continue;
+    for (const auto& line : SeriesPolylines(series, layout)) {
+      for (size_t i = 0; i < line.size(); ++i) {
+        d += i > 0 ? "L" : (d.empty() ? "M" : " M");
+        d += Px(line[i].x) + " " + Px(line[i].y);
       }
-      d += pen_down ? "L" : (d.empty() ? "M" : " M");
-      d += Px(to_px_x(xs[i])) + " " + Px(to_px_y(ys[i]));
-      pen_down = true;
     }
     svg += "<path d=\"" + d + "\" fill=\"none\" stroke=\"" + EscapeXml(series.colour) +
            "\" stroke-width=\"1.3\" stroke-linejoin=\"round\"" +
@@ -330,8 +347,8 @@ std::string RenderSvg(const Chart& chart, int width_px, int height_px) {
   }
 
   // Legend rows under the x label.
-  for (const auto& entry : legend) {
-    const double y = bottom + 50.0 + kLegendRowPx * entry.row;
+  for (const auto& entry : layout.legend) {
+    const double y = layout.LegendRowPx(entry.row);
     if (entry.is_span) {
       svg += "<rect x=\"" + Px(entry.x_px) + "\" y=\"" + Px(y - 9.0) + "\" width=\"24.0\" " +
              "height=\"11.0\" fill=\"" + EscapeXml(entry.colour) + "\" fill-opacity=\"" +

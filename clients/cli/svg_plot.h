@@ -46,6 +46,44 @@ struct Chart {
   std::vector<Span> spans;
 };
 
+// Where a chart's parts go on a canvas of width x height pixels (origin top left, y down):
+// the plot area, the axis ranges and ticks, and the legend. RenderSvg and RenderPng
+// (png_plot.h) draw the same layout, so both formats look alike.
+struct LegendEntry {
+  std::string label;
+  std::string colour;
+  bool is_span = false;  // a shaded box (span) rather than a line (series)
+  bool dashed = false;
+  double opacity = 1.0;
+  double x_px = 0.0;  // left end of the sample
+  int row = 0;        // legend row, from 0
+};
+
+struct ChartLayout {
+  double width = 0.0, height = 0.0;
+  double left = 0.0, right = 0.0, top = 0.0, bottom = 0.0;      // plot area, px
+  double x_low = 0.0, x_high = 1.0, y_low = 0.0, y_high = 1.0;  // axis ranges, data units
+  std::vector<double> x_ticks, y_ticks;                         // data units
+  std::vector<LegendEntry> legend;
+  double XPx(double x) const { return left + (x - x_low) / (x_high - x_low) * (right - left); }
+  double YPx(double y) const { return bottom - (y - y_low) / (y_high - y_low) * (bottom - top); }
+  // Baseline of the legend texts of row `row`.
+  double LegendRowPx(int row) const;
+};
+
+// The layout RenderSvg uses (sizes below 200 px are raised to 200).
+ChartLayout LayoutChart(const Chart& chart, int width_px, int height_px);
+
+// A point in pixels.
+struct PointPx {
+  double x = 0.0, y = 0.0;
+};
+
+// The lines a series is drawn as, in pixels: the hold points of a step series inserted,
+// decimated with DecimateMinMax, broken where a point is not finite. A line may hold a
+// single point.
+std::vector<std::vector<PointPx>> SeriesPolylines(const Series& series, const ChartLayout& layout);
+
 // The chart as an SVG document of width_px x height_px (each at least 200; smaller values
 // are raised to 200). The x axis spans the finite data, with the NiceTicks inside it; the
 // y axis runs from the first to the last NiceTicks value around the finite data. One

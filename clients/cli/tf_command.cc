@@ -5,6 +5,7 @@
 
 #include "clients/cli/command.h"
 #include "clients/cli/format.h"
+#include "clients/cli/tf_show.h"
 #include "model/model_file.h"
 #include "model/transfer_function.h"
 
@@ -66,45 +67,50 @@ void PrintTransferFunction(const model::TransferFunction& tf, std::ostream& out)
 
 void RunShow(const std::string& path, bool as_json) {
   const model::ModelDocument doc = model::ReadModelFile(path);
-  if (doc.kind == model::ModelDocument::Kind::kTransferFunction) {
-    if (as_json) {
-      json out = TransferFunctionJson(doc.tf);
-      out["kind"] = "tf";
-      std::cout << out.dump(2) << '\n';
-      return;
-    }
-    std::cout << path << ": transfer function\n";
-    PrintTransferFunction(doc.tf, std::cout);
-    return;
-  }
-  if (as_json) {
-    json locals = json::array();
-    for (const model::LocalModel& rule : doc.ts.rules) {
-      json local = TransferFunctionJson(rule.tf);
-      local["level_V"] = rule.level_V;
-      local["membership"] = {{"shape", model::MembershipShapeName(rule.membership.shape)},
-                             {"params", json::array()}};
-      for (double p : rule.membership.params) local["membership"]["params"].push_back(Finite(p));
-      locals.push_back(local);
-    }
-    std::cout << json{{"kind", "ts_fuzzy"},
-                      {"scheduling", model::SchedulingVariableName(doc.ts.scheduling)},
-                      {"local_models", locals}}
-                     .dump(2)
-              << '\n';
-    return;
-  }
-  std::cout << path << ": T-S fuzzy model, " << doc.ts.rules.size() << " rules, scheduled on "
-            << model::SchedulingVariableName(doc.ts.scheduling) << "\n";
-  for (size_t i = 0; i < doc.ts.rules.size(); ++i) {
-    const model::LocalModel& rule = doc.ts.rules[i];
-    std::cout << "\nlocal model " << i + 1 << " at " << FormatNumber(rule.level_V) << " V ("
-              << model::MembershipShapeName(rule.membership.shape) << " membership)\n";
-    PrintTransferFunction(rule.tf, std::cout);
-  }
+  if (as_json)
+    std::cout << ModelPresentationJson(doc).dump(2) << '\n';
+  else
+    PrintModelPresentation(doc, path, std::cout);
 }
 
 }  // namespace
+
+json ModelPresentationJson(const model::ModelDocument& doc) {
+  if (doc.kind == model::ModelDocument::Kind::kTransferFunction) {
+    json out = TransferFunctionJson(doc.tf);
+    out["kind"] = "tf";
+    return out;
+  }
+  json locals = json::array();
+  for (const model::LocalModel& rule : doc.ts.rules) {
+    json local = TransferFunctionJson(rule.tf);
+    local["level_V"] = rule.level_V;
+    local["membership"] = {{"shape", model::MembershipShapeName(rule.membership.shape)},
+                           {"params", json::array()}};
+    for (double p : rule.membership.params) local["membership"]["params"].push_back(Finite(p));
+    locals.push_back(local);
+  }
+  return {{"kind", "ts_fuzzy"},
+          {"scheduling", model::SchedulingVariableName(doc.ts.scheduling)},
+          {"local_models", locals}};
+}
+
+void PrintModelPresentation(const model::ModelDocument& doc, const std::string& name,
+                            std::ostream& out) {
+  if (doc.kind == model::ModelDocument::Kind::kTransferFunction) {
+    out << name << ": transfer function\n";
+    PrintTransferFunction(doc.tf, out);
+    return;
+  }
+  out << name << ": T-S fuzzy model, " << doc.ts.rules.size() << " rules, scheduled on "
+      << model::SchedulingVariableName(doc.ts.scheduling) << "\n";
+  for (size_t i = 0; i < doc.ts.rules.size(); ++i) {
+    const model::LocalModel& rule = doc.ts.rules[i];
+    out << "\nlocal model " << i + 1 << " at " << FormatNumber(rule.level_V) << " V ("
+        << model::MembershipShapeName(rule.membership.shape) << " membership)\n";
+    PrintTransferFunction(rule.tf, out);
+  }
+}
 
 void RegisterTfCommand(CLI::App& app) {
   CLI::App* tf = app.add_subcommand("tf", "Inspect transfer-function and T-S model files");
