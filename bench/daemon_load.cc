@@ -10,6 +10,9 @@
 //       [--recv-buf-size BYTES (LCM udpm recv_buf_size=, daemon and bench)]
 //       [--commit-interval-ms MS (the daemon's setting)] [--tap-deflections 1]
 //       [--log-level warn] [--dump FILE.csv] [--keep]
+//   soak (issue 7; bench/soak runs --seconds 600 --identify-every 60):
+//       [--identify-every S (instead of --identify-at)] [--sample-every 10]
+//       [--warmup-s 60 (S + 30 with --identify-every)]
 //   experiments on the daemon's threads (not its own behaviour; labelled in the output):
 //       [--renice-workers NICE] (sample writer + identification worker at that nice)
 //       [--pin-threads] (the daemon's pin_threads: loop + LCM receive on CPU 0, writer + worker on
@@ -34,6 +37,13 @@
 //  - Subscriber: FLEXID/.*/PREDICTION (and, with --tap-deflections 1, FLEXID/.*/DEFLECTION,
 //    only for its kernel receive time stamp) and the RPC replies.
 //  - At --identify-at: "identify" {"actuator": "L00", "latest": 1} (L00's first trial).
+//  - Or, with --identify-every S, at S, 2S, ...: "identify" {"actuator": L<j mod N>,
+//    "latest": 1}, each on a trial of --first-trial-s (default 22 s, 11,000 samples at 500 Hz):
+//    that actuator's trial is stopped and restarted --first-trial-s + 1 s and 1 s before.
+//    Every --sample-every seconds a line: the process's VmRSS and VmHWM, the daemon's
+//    counters and backlogs, and the latency in that window (fixed-size histograms, so that
+//    this program's memory does not grow with the run; its per-sample arrays, used for the
+//    read-back, are allocated and written before t0). A soak summary ends the output.
 //  - At the end: "status" RPCs until samples_stored == predictions_published -
 //    dropped_queue_full (every accepted deflection is in a trial), then the daemon is
 //    stopped and destroyed and the database is read back and compared with what was
@@ -73,6 +83,7 @@
 #include <flexid/prediction_t.hpp>
 #include <flexid/rpc_reply_t.hpp>
 #include <flexid/rpc_request_t.hpp>
+#include <flexid/status_t.hpp>
 #include <flexid/trial_control_t.hpp>
 #include <flexid/voltage_sample_t.hpp>
 #include <fstream>
@@ -123,6 +134,13 @@ struct Options {
   int renice_workers = 0;      // experiment: nice of the daemon's writer and worker threads
   int commit_interval_ms = 0;  // the daemon's commit_interval_ms (0: its default)
   bool pin_threads = false;    // the daemon's pin_threads setting (daemon/config.h)
+  // soak
+  double identify_every = 0;  // > 0: an identification every S seconds (rotating actuators)
+  double sample_every = 10;   // seconds between sample lines
+  double warmup_s = 60;       // the memory fit starts here (default with --identify-every: S + 30)
+  bool identify_at_given = false;
+  bool sample_every_given = false;
+  bool warmup_given = false;
 };
 
 [[noreturn]] void Usage(const std::string& problem) {
@@ -131,7 +149,8 @@ struct Options {
                "[--identify-at S] [--period-s S] [--first-trial-s S] [--recv-buf-size BYTES] "
                "[--tap-deflections 0|1] "
                "[--log-level LEVEL] [--dump FILE.csv] [--commit-interval-ms MS] "
-               "[--renice-workers NICE] [--pin-threads] [--keep]\n",
+               "[--renice-workers NICE] [--pin-threads] [--keep] "
+               "[--identify-every S] [--sample-every S] [--warmup-s S]\n",
                problem.c_str());
   std::exit(2);
 }
@@ -164,9 +183,18 @@ Options ParseOptions(int argc, char** argv) {
       o.actuators = static_cast<int>(Number(flag, value));
     else if (flag == "--rate-hz")
       o.rate_hz = Number(flag, value);
-    else if (flag == "--identify-at")
+    else if (flag == "--identify-at") {
       o.identify_at = Number(flag, value);
-    else if (flag == "--period-s")
+      o.identify_at_given = true;
+    } else if (flag == "--identify-every")
+      o.identify_every = Number(flag, value);
+    else if (flag == "--sample-every") {
+      o.sample_every = Number(flag, value);
+      o.sample_every_given = true;
+    } else if (flag == "--warmup-s") {
+      o.warmup_s = Number(flag, value);
+      o.warmup_given = true;
+    } else if (flag == "--period-s")
       o.period_s = Number(flag, value);
     else if (flag == "--first-trial-s")
       o.first_trial_s = Number(flag, value);
@@ -192,6 +220,17 @@ Options ParseOptions(int argc, char** argv) {
   if (o.renice_workers < 0 || o.renice_workers > 19) Usage("--renice-workers must be 0..19");
   if (o.first_trial_s < 0 || o.first_trial_s > 3600) Usage("--first-trial-s must be 0..3600");
   if (o.recv_buf_size < 0) Usage("--recv-buf-size must be >= 0");
+  if (o.identify_every > 0) {
+    if (o.identify_at_given && o.identify_at > 0)
+      Usage("--identify-at and --identify-every exclude each other");
+    o.identify_at = 0;
+    if (o.identify_every < o.first_trial_s + 2 || o.identify_every > o.seconds - 0.5)
+      Usage("--identify-every must be in [first-trial-s + 2, seconds - 0.5]");
+  }
+  if (o.sample_every < 1 || o.sample_every > 600) Usage("--sample-every must be 1..600");
+  // The warm-up includes the first identification (its working memory, the worker's arena).
+  if (o.identify_every > 0 && !o.warmup_given) o.warmup_s = o.identify_every + 30;
+  if (o.warmup_s < 0) Usage("--warmup-s must be >= 0");
   if (o.identify_at > 0 && (o.identify_at < 2 || o.identify_at > o.seconds - 0.5))
     Usage("--identify-at must be 0 (off) or in [2, seconds - 0.5]");
   return o;
@@ -209,6 +248,8 @@ struct Plan {
   int64_t history = 0;  // L00's samples before t0
   double rate_hz = 0, period_s = 0;
   int64_t restart_k = -1;  // tick at which L00's trial is stopped and restarted (-1: never)
+  // Every trial stop + restart (restart_k's among them), sorted by tick: {tick, actuator}.
+  std::vector<std::pair<int64_t, int>> restarts;
 
   int64_t FirstK(int actuator) const { return actuator == 0 ? -history : 0; }
 
@@ -279,11 +320,12 @@ class Publisher {
         history_start_(history_start),
         history_speed_(history_speed),
         t0_(t0),
-        publish_ns_(plan.Slots(), kUnset),
+        publish_ns_(plan.Slots()),
         deflection_mm_(plan.Slots(), NAN),
         state_(static_cast<size_t>(plan.actuators), 0.0),
         dead_(static_cast<int64_t>(std::llround(kDeadTimeS * plan.rate_hz))),
         a_(std::exp(-1.0 / (plan.rate_hz * kTauS))) {
+    for (auto& p : publish_ns_) p.store(kUnset, std::memory_order_relaxed);
     for (int i = 0; i < plan_.actuators; ++i) {
       ids_.push_back(ActuatorId(i));
       voltage_channel_.push_back("FLEXID/" + ids_.back() + "/VOLTAGE");
@@ -307,6 +349,7 @@ class Publisher {
     std::this_thread::sleep_until(t0_);
     const int64_t cpu_start = ThreadCpuNs();
     const double period_ns = 1e9 / plan_.rate_hz;
+    size_t next_restart = 0;
     for (int64_t k = 0; k < plan_.samples; ++k) {
       const Clock::time_point due =
           t0_ + std::chrono::nanoseconds(std::llround(static_cast<double>(k) * period_ns));
@@ -323,9 +366,11 @@ class Publisher {
         ++report_.late_by_s[std::min(report_.late_by_s.size() - 1,
                                      static_cast<size_t>(static_cast<double>(k) / plan_.rate_hz))];
       }
-      if (k == plan_.restart_k) {
-        Control(0, flexid::trial_control_t::kStop, plan_.Utime(k) - 1, "");
-        Control(0, flexid::trial_control_t::kStart, plan_.Utime(k), "daemon_load second trial");
+      for (; next_restart < plan_.restarts.size() && plan_.restarts[next_restart].first <= k;
+           ++next_restart) {
+        const int a = plan_.restarts[next_restart].second;
+        Control(a, flexid::trial_control_t::kStop, plan_.Utime(k) - 1, "");
+        Control(a, flexid::trial_control_t::kStart, plan_.Utime(k), "daemon_load next trial");
       }
       for (int i = 0; i < plan_.actuators; ++i) PublishSample(i, k);
       report_.max_tick_ns = std::max(report_.max_tick_ns, Since(start, Clock::now()));
@@ -338,7 +383,8 @@ class Publisher {
   }
 
   const PublisherReport& report() const { return report_; }
-  const std::vector<int64_t>& publish_ns() const { return publish_ns_; }
+  // Read by the subscriber's handler while the run goes on (relaxed atomics).
+  const std::vector<std::atomic<int64_t>>& publish_ns() const { return publish_ns_; }
   const std::vector<double>& deflection_mm() const { return deflection_mm_; }
 
  private:
@@ -359,7 +405,7 @@ class Publisher {
     deflection_.deflection_mm = state_[s] + noise_(random_);
     if (lcm_.publish(voltage_channel_[s], &voltage_) != 0) ++report_.publish_failures;
     deflection_mm_[plan_.Slot(i, k)] = deflection_.deflection_mm;
-    publish_ns_[plan_.Slot(i, k)] = Since(t0_, Clock::now());
+    publish_ns_[plan_.Slot(i, k)].store(Since(t0_, Clock::now()), std::memory_order_relaxed);
     if (lcm_.publish(deflection_channel_[s], &deflection_) != 0) ++report_.publish_failures;
   }
 
@@ -377,17 +423,83 @@ class Publisher {
   const Clock::time_point history_start_;
   const double history_speed_;
   const Clock::time_point t0_;
-  std::vector<int64_t> publish_ns_;    // per slot: steady ns since t0 just before publish
-  std::vector<double> deflection_mm_;  // per slot: the value published
-  std::vector<double> state_;          // per actuator: the lag's output, mm
-  const int64_t dead_;                 // dead time, samples
-  const double a_;                     // the lag's pole
+  std::vector<std::atomic<int64_t>> publish_ns_;  // per slot: steady ns since t0 before publish
+  std::vector<double> deflection_mm_;             // per slot: the value published
+  std::vector<double> state_;                     // per actuator: the lag's output, mm
+  const int64_t dead_;                            // dead time, samples
+  const double a_;                                // the lag's pole
   std::mt19937_64 random_{42};
   std::normal_distribution<double> noise_{0.0, kNoiseMm};
   flexid::voltage_sample_t voltage_;
   flexid::deflection_sample_t deflection_;
   std::vector<std::string> ids_, voltage_channel_, deflection_channel_;
   PublisherReport report_;
+};
+
+// --- latency histogram -----------------------------------------------------------------
+
+// Latencies in microseconds, in fixed memory (24 KiB): 1 us buckets below 1,024 us, then 64
+// buckets per power of two (a bucket is < 1.6 % wide), up to 2^40 us. A quantile is the
+// lower edge of the bucket holding the nearest-rank sample; the maximum is exact.
+class Histogram {
+ public:
+  void Add(double us) {
+    ++count_;
+    max_ = std::max(max_, us);
+    over_1ms_ += us > 1000.0;
+    ++buckets_[Bucket(us)];
+  }
+  void Merge(const Histogram& other) {
+    for (size_t b = 0; b < kBuckets; ++b) buckets_[b] += other.buckets_[b];
+    count_ += other.count_;
+    over_1ms_ += other.over_1ms_;
+    max_ = std::max(max_, other.max_);
+  }
+  size_t count() const { return count_; }
+  double Quantile(double q) const {
+    if (count_ == 0) return NAN;
+    const auto rank =
+        std::max<size_t>(1, static_cast<size_t>(std::ceil(q * static_cast<double>(count_))));
+    size_t seen = 0;
+    for (size_t b = 0; b < kBuckets; ++b) {
+      seen += buckets_[b];
+      if (seen >= rank) return std::min(LowerEdge(b), max_);
+    }
+    return max_;
+  }
+  double max() const { return count_ ? max_ : NAN; }
+  size_t over_1ms() const { return over_1ms_; }
+
+ private:
+  static constexpr size_t kLinear = 1024, kSub = 64, kBuckets = kLinear + 31 * kSub;
+  static size_t Bucket(double us) {
+    if (!(us > 0)) return 0;
+    const auto v = static_cast<uint64_t>(std::min(us, 1e12));
+    if (v < kLinear) return static_cast<size_t>(v);
+    const int e = 63 - __builtin_clzll(v);  // >= 10
+    const size_t b = kLinear + static_cast<size_t>(e - 10) * kSub + ((v >> (e - 6)) & (kSub - 1));
+    return std::min(b, kBuckets - 1);
+  }
+  static double LowerEdge(size_t b) {
+    if (b < kLinear) return static_cast<double>(b);
+    const size_t e = (b - kLinear) / kSub + 10, sub = (b - kLinear) % kSub;
+    return std::ldexp(1.0, static_cast<int>(e)) * (1.0 + static_cast<double>(sub) / kSub);
+  }
+  std::vector<uint64_t> buckets_ = std::vector<uint64_t>(kBuckets, 0);
+  size_t count_ = 0, over_1ms_ = 0;
+  double max_ = 0;
+};
+
+// What the subscriber's handler measured in one sample window, split by whether the
+// deflection was published while an identify request was outstanding.
+struct LiveLatency {
+  Histogram ext_in, ext_out, s2s_in, s2s_out;
+  void Merge(const LiveLatency& o) {
+    ext_in.Merge(o.ext_in);
+    ext_out.Merge(o.ext_out);
+    s2s_in.Merge(o.s2s_in);
+    s2s_out.Merge(o.s2s_out);
+  }
 };
 
 // --- subscriber ------------------------------------------------------------------------
@@ -425,6 +537,28 @@ class Subscriber {
   // The origin of the recorded times; set before the publisher starts.
   void SetT0(Clock::time_point t0) { t0_ns_ = t0.time_since_epoch().count(); }
   pid_t tid() const { return tid_; }
+  // Live latency (the soak's sample windows): set before the publisher starts.
+  void SetPublishTimes(const std::vector<std::atomic<int64_t>>* publish_ns) {
+    live_publish_ns_ = publish_ns;
+  }
+  // An identify request outstanding from sent_ns (ns since t0) until IdentificationEnded.
+  void IdentificationStarted(int64_t sent_ns) {
+    ident_end_ns_ = INT64_MAX;
+    ident_sent_ns_ = sent_ns;
+  }
+  void IdentificationEnded(int64_t end_ns) { ident_end_ns_ = end_ns; }
+  // The latency measured since the last call.
+  LiveLatency TakeWindow() {
+    LiveLatency out;
+    std::lock_guard lock(live_mutex_);
+    std::swap(out, live_);
+    return out;
+  }
+  // The daemon's last FLEXID/STATUS heartbeat (once a second), if any.
+  std::optional<flexid::status_t> LatestStatus() {
+    std::lock_guard lock(live_mutex_);
+    return status_;
+  }
 
   // Sends a request and waits for its reply.
   std::optional<ReplyRecord> Call(const std::string& method, const nlohmann::json& args,
@@ -444,7 +578,9 @@ class Subscriber {
     replied_.wait_for(lock, timeout, [&] { return replies_.count(request.request_id) > 0; });
     const auto it = replies_.find(request.request_id);
     if (it == replies_.end()) return std::nullopt;
-    return it->second;
+    ReplyRecord out = it->second;
+    replies_.erase(it);  // the soak sends requests all along: keep the map small
+    return out;
   }
 
   int64_t received() const { return received_; }
@@ -472,6 +608,7 @@ class Subscriber {
     lcm_->subscribeFunction(std::string("FLEXID/RPC/REPLY/") + kClientId, &Subscriber::OnReply,
                             this)
         ->setQueueCapacity(100);
+    lcm_->subscribeFunction("FLEXID/STATUS", &Subscriber::OnStatus, this)->setQueueCapacity(10);
     ready->set_value(true);
     while (!stop_) lcm_->handleTimeout(10);
   }
@@ -492,10 +629,28 @@ class Subscriber {
       ++self->duplicates_;
       return;
     }
-    self->prediction_rx_ns_[s] =
-        Since(Clock::time_point(Clock::duration(self->t0_ns_.load())), now);
+    const int64_t rx_ns = Since(Clock::time_point(Clock::duration(self->t0_ns_.load())), now);
+    self->prediction_rx_ns_[s] = rx_ns;
     self->prediction_kernel_us_[s] = rbuf->recv_utime;
     self->model_version_[s] = p.model_version;
+    if (*k < 0 || !self->live_publish_ns_) return;  // L00's history is not timed
+    const int64_t pub = (*self->live_publish_ns_)[s].load(std::memory_order_relaxed);
+    if (pub == kUnset) return;
+    const int64_t sent = self->ident_sent_ns_.load(), end = self->ident_end_ns_.load();
+    const bool in = sent != kUnset && pub >= sent && pub <= end;
+    const int64_t dk = self->deflection_kernel_us_[s];
+    std::lock_guard lock(self->live_mutex_);
+    (in ? self->live_.ext_in : self->live_.ext_out).Add(1e-3 * static_cast<double>(rx_ns - pub));
+    if (dk != kUnset)
+      (in ? self->live_.s2s_in : self->live_.s2s_out)
+          .Add(static_cast<double>(rbuf->recv_utime - dk));
+  }
+
+  static void OnStatus(const lcm::ReceiveBuffer* rbuf, const std::string&, Subscriber* self) {
+    flexid::status_t st;
+    if (st.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) <= 0) return;
+    std::lock_guard lock(self->live_mutex_);
+    self->status_ = st;
   }
 
   static void OnDeflection(const lcm::ReceiveBuffer* rbuf, const std::string&, Subscriber* self) {
@@ -534,6 +689,12 @@ class Subscriber {
   std::vector<int64_t> prediction_kernel_us_;  // SO_TIMESTAMP of the prediction, us
   std::vector<int64_t> deflection_kernel_us_;  // SO_TIMESTAMP of the deflection, us
   std::vector<int32_t> model_version_;
+  // Live figures, shared with the soak's sampler.
+  const std::vector<std::atomic<int64_t>>* live_publish_ns_ = nullptr;
+  std::atomic<int64_t> ident_sent_ns_{kUnset}, ident_end_ns_{kUnset};
+  std::mutex live_mutex_;
+  LiveLatency live_;
+  std::optional<flexid::status_t> status_;
 };
 
 // --- the daemon on its own thread ------------------------------------------------------
@@ -570,6 +731,8 @@ class DaemonThread {
     return final_;
   }
   pid_t tid() const { return tid_; }
+  // The counters while the daemon runs (thread-safe: relaxed atomics); between Start and Stop.
+  Counters Live() const { return daemon_->counters(); }
   ~DaemonThread() { Stop(); }
 
  private:
@@ -768,6 +931,228 @@ void PrintStatsRow(const char* label, const Stats& s) {
               s.over_1ms);
 }
 
+// --- soak: a sample line every few seconds ------------------------------------------------
+
+// VmRSS and VmHWM of this process, KiB (/proc/self/status).
+std::pair<int64_t, int64_t> ResidentKiB() {
+  std::ifstream in("/proc/self/status");
+  std::string line;
+  int64_t rss = -1, hwm = -1;
+  while (std::getline(in, line)) {
+    if (line.rfind("VmRSS:", 0) == 0) rss = std::stoll(line.substr(6));
+    if (line.rfind("VmHWM:", 0) == 0) hwm = std::stoll(line.substr(6));
+  }
+  return {rss, hwm};
+}
+
+struct SoakRow {
+  double t_s = 0;
+  // Polled every 50 ms within the window (a single snapshot every 10 s would alias with the
+  // daemon's 100 ms commits): VmRSS mean and max, the backlog mean and max.
+  double rss_mean_kib = 0, backlog_mean = 0;
+  int64_t rss_max_kib = 0, hwm_kib = 0, backlog_max = 0;
+  int64_t writer_depth_max = -1;  // max writer_queue_depth of the STATUS heartbeats (1/s)
+  int64_t socket_rx_queue_max = -1, socket_drops = -1;  // the daemon's UDP socket
+  Counters c;                                           // at the end of the window
+  bool identification = false;  // an identify request was outstanding in the window
+  double machine_cores = 0, self_cores = 0;
+  Stats ext, s2s;  // this window
+};
+
+Stats FromHistogram(const Histogram& h) {
+  Stats s;
+  s.n = h.count();
+  s.p50 = h.Quantile(0.50);
+  s.p90 = h.Quantile(0.90);
+  s.p99 = h.Quantile(0.99);
+  s.p999 = h.Quantile(0.999);
+  s.max = h.max();
+  s.over_1ms = h.over_1ms();
+  return s;
+}
+
+// From t0 until stopped: polls memory and backlogs every 50 ms and, every `every` seconds
+// (and for the last, partial window when stopped), prints one SoakRow at once. Latency
+// comes from the subscriber's handler, in fixed-size histograms.
+class SoakSampler {
+ public:
+  SoakSampler(Subscriber* subscriber, const DaemonThread* daemon, int port, uint64_t daemon_inode)
+      : subscriber_(subscriber), daemon_(daemon), port_(port), daemon_inode_(daemon_inode) {}
+  void Start(Clock::time_point t0, double every) {
+    std::printf(
+        "\n== soak: a line every %g s (rss and backlog: mean/max of 50 ms polls; wq: max of the "
+        "STATUS heartbeats; sock_rxq: max bytes queued at the daemon's socket; latency in ms "
+        "for the deflections of that window; ours/others: cores busy) ==\n",
+        every);
+    std::printf(
+        "  %6s %7s %7s %7s %6s %7s %7s %8s %5s %9s %9s %5s %9s %6s %6s %7s %6s %7s %5s "
+        "%5s %6s\n",
+        "t_s", "rss_avg", "rss_max", "hwm_MiB", "wq_max", "bl_avg", "bl_max", "sock_rxq", "drops",
+        "accepted", "stored", "dropd", "predicted", "s2s50", "s2s99", "s2s_max", "ext99", "ext_max",
+        "ident", "ours", "others");
+    std::fflush(stdout);
+    thread_ = std::thread([this, t0, every] {
+      NameThread("bench-soak");
+      last_machine_ = ReadMachineCpu();
+      last_self_ = SelfCpu();
+      last_at_ = t0;
+      const auto poll = std::chrono::milliseconds(50);
+      Clock::time_point next_poll = t0 + poll;
+      for (int n = 1;; ++n) {
+        const auto due = t0 + std::chrono::nanoseconds(std::llround(n * every * 1e9));
+        bool stopping = false;
+        for (; next_poll <= due && !stopping; next_poll += poll) {
+          std::unique_lock lock(mutex_);
+          stopping = wake_.wait_until(lock, next_poll, [this] { return stop_; });
+          lock.unlock();
+          Poll();
+        }
+        if (stopping) {
+          if (Clock::now() - last_at_ > std::chrono::milliseconds(500)) Emit(t0);
+          break;
+        }
+        Emit(t0);
+      }
+    });
+  }
+  // Called by the identification loop.
+  void IdentificationRunning(bool running) {
+    ident_now_ = running;
+    if (running) ident_in_window_ = true;
+  }
+  void Stop() {
+    {
+      std::lock_guard lock(mutex_);
+      stop_ = true;
+    }
+    wake_.notify_all();
+    if (thread_.joinable()) thread_.join();
+  }
+  ~SoakSampler() { Stop(); }
+  const std::vector<SoakRow>& rows() const { return rows_; }  // after Stop()
+  const LiveLatency& total() const { return total_; }         // after Stop()
+
+ private:
+  static double SelfCpu() {
+    timespec t{};
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+    return static_cast<double>(t.tv_sec) + 1e-9 * static_cast<double>(t.tv_nsec);
+  }
+
+  void Poll() {
+    const auto [rss, hwm] = ResidentKiB();
+    const Counters c = daemon_->Live();
+    const int64_t backlog = c.predictions_published - c.dropped_queue_full - c.samples_stored;
+    ++polls_;
+    rss_sum_ += static_cast<double>(rss);
+    rss_max_ = std::max(rss_max_, rss);
+    hwm_ = hwm;
+    backlog_sum_ += static_cast<double>(backlog);
+    backlog_max_ = std::max(backlog_max_, backlog);
+    const auto sockets = UdpSockets(port_);
+    if (const auto it = sockets.find(daemon_inode_); it != sockets.end()) {
+      rx_queue_max_ = std::max(rx_queue_max_, it->second.rx_queue);
+      drops_ = it->second.drops;
+    }
+    if (const auto st = subscriber_->LatestStatus(); st && st->utime != last_status_utime_) {
+      last_status_utime_ = st->utime;
+      writer_depth_max_ = std::max<int64_t>(writer_depth_max_, st->writer_queue_depth);
+    }
+  }
+
+  void Emit(Clock::time_point t0) {
+    const Clock::time_point now = Clock::now();
+    SoakRow r;
+    r.t_s = 1e-9 * static_cast<double>(Since(t0, now));
+    if (polls_ == 0) Poll();
+    r.rss_mean_kib = rss_sum_ / static_cast<double>(polls_);
+    r.rss_max_kib = rss_max_;
+    r.hwm_kib = hwm_;
+    r.backlog_mean = backlog_sum_ / static_cast<double>(polls_);
+    r.backlog_max = backlog_max_;
+    r.writer_depth_max = writer_depth_max_;
+    r.socket_rx_queue_max = rx_queue_max_;
+    r.socket_drops = drops_;
+    polls_ = 0;
+    rss_sum_ = backlog_sum_ = 0;
+    rss_max_ = backlog_max_ = 0;
+    writer_depth_max_ = rx_queue_max_ = -1;
+    r.c = daemon_->Live();
+    r.identification = ident_in_window_.exchange(ident_now_.load()) || ident_now_;
+    const MachineCpu machine = ReadMachineCpu();
+    const double self = SelfCpu();
+    const double wall = 1e-9 * static_cast<double>(Since(last_at_, now));
+    const double hz = static_cast<double>(sysconf(_SC_CLK_TCK));
+    if (wall > 0) {
+      r.machine_cores = static_cast<double>(machine.busy - last_machine_.busy) / hz / wall;
+      r.self_cores = (self - last_self_) / wall;
+    }
+    last_machine_ = machine;
+    last_self_ = self;
+    last_at_ = now;
+    const LiveLatency window = subscriber_->TakeWindow();
+    total_.Merge(window);
+    Histogram ext = window.ext_in, s2s = window.s2s_in;
+    ext.Merge(window.ext_out);
+    s2s.Merge(window.s2s_out);
+    r.ext = FromHistogram(ext);
+    r.s2s = FromHistogram(s2s);
+    std::printf("  %6.1f %7.1f %7.1f %7.1f %6" PRId64 " %7.0f %7" PRId64 " %8" PRId64 " %5" PRId64
+                " %9" PRId64 " %9" PRId64 " %5" PRId64 " %9" PRId64
+                " %6s %6s %7s %6s %7s %5s %5.2f %6.2f\n",
+                r.t_s, r.rss_mean_kib / 1024.0, static_cast<double>(r.rss_max_kib) / 1024.0,
+                static_cast<double>(r.hwm_kib) / 1024.0, r.writer_depth_max, r.backlog_mean,
+                r.backlog_max, r.socket_rx_queue_max, r.socket_drops, r.c.samples_accepted,
+                r.c.samples_stored, r.c.dropped_queue_full, r.c.predictions_published,
+                Ms(r.s2s.p50).c_str(), Ms(r.s2s.p99).c_str(), Ms(r.s2s.max).c_str(),
+                Ms(r.ext.p99).c_str(), Ms(r.ext.max).c_str(), r.identification ? "yes" : "no",
+                r.self_cores, std::max(0.0, r.machine_cores - r.self_cores));
+    std::fflush(stdout);
+    rows_.push_back(r);
+  }
+
+  Subscriber* subscriber_;
+  const DaemonThread* daemon_;
+  const int port_;
+  const uint64_t daemon_inode_;
+  std::thread thread_;
+  std::mutex mutex_;
+  std::condition_variable wake_;
+  bool stop_ = false;
+  std::atomic<bool> ident_now_{false}, ident_in_window_{false};
+  // The window's polls (sampler thread only).
+  int64_t polls_ = 0;
+  double rss_sum_ = 0, backlog_sum_ = 0;
+  int64_t rss_max_ = 0, hwm_ = 0, backlog_max_ = 0, writer_depth_max_ = -1, rx_queue_max_ = -1,
+          drops_ = -1, last_status_utime_ = 0;
+  MachineCpu last_machine_;
+  double last_self_ = 0;
+  Clock::time_point last_at_;
+  std::vector<SoakRow> rows_;
+  LiveLatency total_;
+};
+
+// Least-squares slope and intercept of y over x.
+std::pair<double, double> LinearFit(const std::vector<double>& x, const std::vector<double>& y) {
+  const size_t n = x.size();
+  if (n < 2) return {NAN, NAN};
+  double mx = 0, my = 0;
+  for (size_t i = 0; i < n; ++i) {
+    mx += x[i];
+    my += y[i];
+  }
+  mx /= static_cast<double>(n);
+  my /= static_cast<double>(n);
+  double sxy = 0, sxx = 0;
+  for (size_t i = 0; i < n; ++i) {
+    sxy += (x[i] - mx) * (y[i] - my);
+    sxx += (x[i] - mx) * (x[i] - mx);
+  }
+  if (sxx == 0) return {NAN, NAN};
+  const double slope = sxy / sxx;
+  return {slope, my - slope * mx};
+}
+
 std::string Join(int argc, char** argv) {
   std::string out;
   for (int i = 0; i < argc; ++i) {
@@ -789,13 +1174,29 @@ int main(int argc, char** argv) {
   plan.rate_hz = opt.rate_hz;
   plan.period_s = opt.period_s;
   plan.samples = static_cast<int64_t>(std::llround(opt.seconds * opt.rate_hz));
-  const bool identify = opt.identify_at > 0;
-  if (identify) {
+  const bool soak = opt.identify_every > 0 || opt.sample_every_given;
+  const bool identify = opt.identify_at > 0 || opt.identify_every > 0;
+  std::vector<std::pair<double, int>> schedule;  // identifications: {t in s, actuator}
+  if (opt.identify_at > 0) {
     plan.restart_k = static_cast<int64_t>(std::llround((opt.identify_at - 1) * opt.rate_hz));
     // The identification needs max_delay_s / dt + 50 samples (model/identify.cc) and
     // the trial must end before the request: L00's first trial gets a history before t0.
     plan.history = std::max<int64_t>(
         0, static_cast<int64_t>(std::llround(opt.first_trial_s * opt.rate_hz)) - plan.restart_k);
+    plan.restarts.push_back({plan.restart_k, 0});
+    schedule.push_back({opt.identify_at, 0});
+  } else if (opt.identify_every > 0) {
+    // Identification j (from 1) at j * S, of actuator (j - 1) mod N, on a trial of
+    // first_trial_s that ends 1 s before the request: the same work every time.
+    for (int j = 1; j * opt.identify_every <= opt.seconds - 0.5; ++j) {
+      const double at = j * opt.identify_every;
+      const int a = (j - 1) % opt.actuators;
+      plan.restarts.push_back(
+          {static_cast<int64_t>(std::llround((at - opt.first_trial_s - 1) * opt.rate_hz)), a});
+      plan.restarts.push_back({static_cast<int64_t>(std::llround((at - 1) * opt.rate_hz)), a});
+      schedule.push_back({at, a});
+    }
+    std::sort(plan.restarts.begin(), plan.restarts.end());
   }
 
   std::random_device device;
@@ -891,6 +1292,17 @@ int main(int argc, char** argv) {
     subscriber.Stop();
     return 1;
   }
+  subscriber.SetPublishTimes(&publisher.publish_ns());
+  // Per sample slot: publish time and value (publisher), receive times of the deflection and
+  // of the prediction, and the model version (subscriber). Written before t0, constant after.
+  const double per_sample_arrays_mib =
+      static_cast<double>(plan.Slots()) * (8 + 8 + 8 + 8 + 8 + 4) / (1024.0 * 1024.0);
+  if (opt.identify_every > 0)
+    std::printf(
+        "identifications: every %g s from %g s, rotating over the actuators, each on a "
+        "trial of %g s (%" PRId64 " samples) stopped 1 s before\n",
+        opt.identify_every, opt.identify_every, opt.first_trial_s,
+        static_cast<int64_t>(std::llround(opt.first_trial_s * opt.rate_hz)));
   if (plan.history > 0)
     std::printf("L00: %" PRId64
                 " samples of history before t0 (%g x real time), so that its "
@@ -909,18 +1321,47 @@ int main(int argc, char** argv) {
   LoadMonitor monitor;
   monitor.Start(t0, static_cast<size_t>(std::ceil(opt.seconds)));
 
-  // Identification of L00 on its first trial, while the load goes on.
-  std::optional<ReplyRecord> identify_reply;
-  Clock::time_point identify_sent{};
-  if (identify) {
-    std::this_thread::sleep_until(t0 +
-                                  std::chrono::nanoseconds(std::llround(opt.identify_at * 1e9)));
-    identify_reply = subscriber.Call("identify", {{"actuator", "L00"}, {"latest", 1}},
-                                     std::chrono::seconds(120), &identify_sent);
+  std::optional<SoakSampler> sampler;
+  if (soak) {
+    sampler.emplace(&subscriber, &daemon, port, daemon_inode);
+    sampler->Start(t0, opt.sample_every);
+  }
+
+  // The identifications (--identify-at: L00 on its first trial), while the load goes on.
+  struct Identification {
+    int actuator = 0;
+    Clock::time_point sent{};
+    std::optional<ReplyRecord> reply;
+  };
+  std::vector<Identification> identifications;
+  for (const auto& [at, a] : schedule) {
+    std::this_thread::sleep_until(t0 + std::chrono::nanoseconds(std::llround(at * 1e9)));
+    Identification id;
+    id.actuator = a;
+    subscriber.IdentificationStarted(Since(t0, Clock::now()));
+    if (sampler) sampler->IdentificationRunning(true);
+    id.reply = subscriber.Call("identify", {{"actuator", ActuatorId(a)}, {"latest", 1}},
+                               std::chrono::seconds(120), &id.sent);
+    subscriber.IdentificationEnded(Since(t0, id.reply ? id.reply->received : Clock::now()));
+    if (sampler) {
+      sampler->IdentificationRunning(false);
+      const double sent_s = 1e-9 * static_cast<double>(Since(t0, id.sent));
+      if (id.reply)
+        std::printf("  # identification of %s sent at t = %.1f s: reply after %.0f ms, status %d\n",
+                    ActuatorId(a).c_str(), sent_s,
+                    1e-6 * static_cast<double>(Since(id.sent, id.reply->received)),
+                    id.reply->reply.status);
+      else
+        std::printf("  # identification of %s sent at t = %.1f s: NO REPLY within 120 s\n",
+                    ActuatorId(a).c_str(), sent_s);
+      std::fflush(stdout);
+    }
+    identifications.push_back(std::move(id));
   }
   publisher_thread.join();
   const MachineCpu machine_end = ReadMachineCpu();
   monitor.Stop();
+  if (sampler) sampler->Stop();
 
   // Drain: until the daemon has stored every deflection it accepted (all are in trials).
   Counters status;
@@ -994,10 +1435,16 @@ int main(int argc, char** argv) {
   const auto& rx = subscriber.prediction_rx_ns();
   const auto& pk = subscriber.prediction_kernel_us();
   const auto& dk = subscriber.deflection_kernel_us();
-  const int64_t window_start = identify ? Since(t0, identify_sent) : kUnset;
-  const int64_t window_end =
-      identify_reply ? Since(t0, identify_reply->received) : (identify ? INT64_MAX : kUnset);
-  auto in_window = [&](int64_t ns) { return identify && ns >= window_start && ns <= window_end; };
+  // Identify requests outstanding, ns since t0: from the request to its reply.
+  std::vector<std::pair<int64_t, int64_t>> windows;
+  for (const Identification& id : identifications)
+    windows.push_back(
+        {Since(t0, id.sent), id.reply ? Since(t0, id.reply->received) : int64_t{INT64_MAX}});
+  auto in_window = [&](int64_t ns) {
+    for (const auto& [from, to] : windows)
+      if (ns >= from && ns <= to) return true;
+    return false;
+  };
   std::vector<double> ext_all, ext_out, ext_in, s2s_all, s2s_out, s2s_in;
   struct Point {
     int64_t publish_ns;
@@ -1175,19 +1622,20 @@ int main(int argc, char** argv) {
         "publish) + one hop.\n");
 
   std::printf("\n== identification ==\n");
-  if (!identify) {
-    std::printf("  off\n");
-  } else if (!identify_reply) {
-    std::printf("  sent at t = %.3f s: NO REPLY within 120 s\n",
-                1e-9 * static_cast<double>(window_start));
-  } else {
-    const auto& r = identify_reply->reply;
+  if (!identify) std::printf("  off\n");
+  for (const Identification& id : identifications) {
+    const double sent_s = 1e-9 * static_cast<double>(Since(t0, id.sent));
+    const std::string who = ActuatorId(id.actuator);
+    if (!id.reply) {
+      std::printf("  sent at t = %.3f s (%s): NO REPLY within 120 s\n", sent_s, who.c_str());
+      continue;
+    }
+    const auto& r = id.reply->reply;
     std::printf(
-        "  \"identify\" {actuator L00, latest 1} sent at t = %.3f s, reply after %.1f ms: "
+        "  \"identify\" {actuator %s, latest 1} sent at t = %.3f s, reply after %.1f ms: "
         "status %d%s%s\n",
-        1e-9 * static_cast<double>(window_start),
-        1e-6 * static_cast<double>(window_end - window_start), r.status,
-        r.error.empty() ? "" : ", error: ", r.error.c_str());
+        who.c_str(), sent_s, 1e-6 * static_cast<double>(Since(id.sent, id.reply->received)),
+        r.status, r.error.empty() ? "" : ", error: ", r.error.c_str());
     if (r.status == flexid::rpc_reply_t::kOk) {
       const auto j = nlohmann::json::parse(r.result_json, nullptr, false);
       if (j.is_object())
@@ -1196,10 +1644,10 @@ int main(int argc, char** argv) {
                     j.value("trials", nlohmann::json()).dump().c_str(),
                     j.value("fit", nlohmann::json()).dump().c_str());
     }
-    if (model_swapped_at_k >= 0)
-      std::printf("  first L00 prediction with the new model: sample %" PRId64 " (t = %.3f s)\n",
-                  model_swapped_at_k, static_cast<double>(model_swapped_at_k) / plan.rate_hz);
   }
+  if (model_swapped_at_k >= 0)
+    std::printf("  first L00 prediction with a new model: sample %" PRId64 " (t = %.3f s)\n",
+                model_swapped_at_k, static_cast<double>(model_swapped_at_k) / plan.rate_hz);
 
   if (!opt.dump.empty()) {
     std::ofstream out(opt.dump);
@@ -1218,18 +1666,20 @@ int main(int argc, char** argv) {
       int64_t from_ns, to_ns;
     };
     std::vector<Event> events;
-    if (plan.restart_k >= 0) {
-      const auto at = static_cast<int64_t>(
-          std::llround(static_cast<double>(plan.restart_k) * 1e9 / plan.rate_hz));
-      events.push_back({"L00 trial stop + start, +100 ms", at, at + 100'000'000});
+    for (const auto& [k, a] : plan.restarts) {
+      const auto at =
+          static_cast<int64_t>(std::llround(static_cast<double>(k) * 1e9 / plan.rate_hz));
+      events.push_back({ActuatorId(a) + " trial stop + start, +100 ms", at, at + 100'000'000});
     }
-    if (identify) {
-      events.push_back({"identify request, +100 ms", window_start, window_start + 100'000'000});
-      if (identify_reply) {
+    for (size_t n = 0; n < windows.size(); ++n) {
+      const auto [from, to] = windows[n];
+      const std::string tag = windows.size() > 1 ? " #" + std::to_string(n + 1) : "";
+      events.push_back({"identify request" + tag + ", +100 ms", from, from + 100'000'000});
+      if (to != INT64_MAX) {
         events.push_back(
-            {"identification running (rest)", window_start + 100'000'000, window_end - 20'000'000});
-        events.push_back({"identify reply -20 ms .. +100 ms", window_end - 20'000'000,
-                          window_end + 100'000'000});
+            {"identification" + tag + " running (rest)", from + 100'000'000, to - 20'000'000});
+        events.push_back(
+            {"identify reply" + tag + " -20 ms .. +100 ms", to - 20'000'000, to + 100'000'000});
       }
     }
     if (!events.empty()) {
@@ -1257,10 +1707,10 @@ int main(int argc, char** argv) {
     if (published_by_s[sec] == 0) continue;
     const Stats e = Summarise(ext_by_s[sec]), s = Summarise(s2s_by_s[sec]);
     const auto sec_ns = static_cast<int64_t>(sec) * 1'000'000'000;
-    const bool ident = identify && window_end >= sec_ns && window_start < sec_ns + 1'000'000'000;
-    const bool restart =
-        plan.restart_k >= 0 &&
-        static_cast<size_t>(static_cast<double>(plan.restart_k) / plan.rate_hz) == sec;
+    bool ident = false, restart = false;
+    for (const auto& [from, to] : windows) ident |= to >= sec_ns && from < sec_ns + 1'000'000'000;
+    for (const auto& [k, a] : plan.restarts)
+      restart |= static_cast<size_t>(static_cast<double>(k) / plan.rate_hz) == sec;
     const bool sampled = sec < monitor.self_cores_.size();
     const double ours = sampled ? monitor.self_cores_[sec] : NAN;
     const double others = sampled ? std::max(0.0, monitor.machine_cores_[sec] - ours) : NAN;
@@ -1269,7 +1719,7 @@ int main(int argc, char** argv) {
                 sec, published_by_s[sec], sec < pr.late_by_s.size() ? pr.late_by_s[sec] : 0,
                 missing_by_s[sec], nopred_by_s[sec], Ms(e.p50).c_str(), Ms(e.p99).c_str(),
                 Ms(e.max).c_str(), Ms(s.p50).c_str(), Ms(s.p99).c_str(), Ms(s.max).c_str(), ours,
-                others, restart ? "  L00 trial restart" : "", ident ? "  identification" : "");
+                others, restart ? "  trial restart" : "", ident ? "  identification" : "");
   }
   std::printf(
       "  ours / others: cores busy with this process / at least with other processes "
@@ -1317,6 +1767,204 @@ int main(int argc, char** argv) {
     std::printf("  %5" PRId64 " %-4s %-10s %8" PRId64 "   %" PRId64 "\n", it->id,
                 it->actuator_id.c_str(), flexid::storage::TrialStateName(it->state), it->samples,
                 expected);
+  }
+
+  if (sampler) {
+    // --- soak summary ------------------------------------------------------------------
+    const std::vector<SoakRow>& rows = sampler->rows();
+    std::printf("\n== soak summary ==\n");
+    std::printf(
+        "  %g s, %d actuators x %g Hz (%g deflections + %g voltages/s), identification "
+        "every %g s; lines every %g s: %zu\n",
+        opt.seconds, opt.actuators, opt.rate_hz, opt.actuators * opt.rate_hz,
+        opt.actuators * opt.rate_hz, opt.identify_every, opt.sample_every, rows.size());
+    {
+      const double hz = static_cast<double>(sysconf(_SC_CLK_TCK));
+      const double machine_s = static_cast<double>(machine_end.busy - machine_start.busy) / hz;
+      double worst_others = 0, worst_at = 0;
+      for (const SoakRow& r : rows)
+        if (r.machine_cores - r.self_cores > worst_others) {
+          worst_others = r.machine_cores - r.self_cores;
+          worst_at = r.t_s;
+        }
+      std::printf(
+          "  machine (2 cores): %.2f cores busy on average, this process %.2f, other "
+          "processes >= %.2f (worst window: %.2f at t = %.0f s)\n",
+          wall_s > 0 ? machine_s / wall_s : 0.0, wall_s > 0 ? cpu_s / wall_s : 0.0,
+          wall_s > 0 ? std::max(0.0, machine_s - cpu_s) / wall_s : 0.0, worst_others, worst_at);
+    }
+
+    // Memory and queues: per line, the means of its 50 ms polls, fitted after the warm-up.
+    std::vector<double> t_min, rss_kib, backlog;
+    int64_t wq_max = -1, backlog_max = 0, rxq_max = -1, rss_max = 0;
+    for (const SoakRow& r : rows) {
+      wq_max = std::max(wq_max, r.writer_depth_max);
+      backlog_max = std::max(backlog_max, r.backlog_max);
+      rxq_max = std::max(rxq_max, r.socket_rx_queue_max);
+      if (r.t_s < opt.warmup_s) continue;
+      t_min.push_back(r.t_s / 60.0);
+      rss_kib.push_back(r.rss_mean_kib);
+      rss_max = std::max(rss_max, r.rss_max_kib);
+      backlog.push_back(r.backlog_mean);
+    }
+    const double rss_slope = LinearFit(t_min, rss_kib).first;  // KiB/min
+    const double base_kib =
+        rss_kib.empty() ? NAN : rss_kib.front() - per_sample_arrays_mib * 1024.0;
+    const double allowed_per_10min = 0.01 * base_kib;  // KiB
+    const double messages_per_10min = 2.0 * opt.actuators * opt.rate_hz * 600.0;
+    std::printf(
+        "\n  memory: VmRSS of the whole process = the daemon + this program's publisher,\n"
+        "  subscriber and their LCM queues; this program's per-sample arrays (%.1f MiB)\n"
+        "  were allocated and written before t0 and do not change size. Per line: the mean\n"
+        "  of its 50 ms polls.\n",
+        per_sample_arrays_mib);
+    if (!rows.empty())
+      std::printf(
+          "    first line (t = %.0f s): RSS %.1f MiB; last line (t = %.0f s): RSS %.1f MiB; "
+          "VmHWM at the end %.1f MiB\n",
+          rows.front().t_s, rows.front().rss_mean_kib / 1024.0, rows.back().t_s,
+          rows.back().rss_mean_kib / 1024.0, static_cast<double>(rows.back().hwm_kib) / 1024.0);
+    if (!rss_kib.empty())
+      std::printf(
+          "    after the %g s warm-up (%zu lines): first %.1f MiB, last %.1f MiB, lowest line "
+          "%.1f, highest line %.1f, highest poll %.1f MiB\n",
+          opt.warmup_s, rss_kib.size(), rss_kib.front() / 1024.0, rss_kib.back() / 1024.0,
+          *std::min_element(rss_kib.begin(), rss_kib.end()) / 1024.0,
+          *std::max_element(rss_kib.begin(), rss_kib.end()) / 1024.0,
+          static_cast<double>(rss_max) / 1024.0);
+    std::printf(
+        "    slope (least squares over those lines): %+.1f KiB/min = %+.0f KiB per 10 min\n",
+        rss_slope, 10 * rss_slope);
+
+    const double input_per_s = opt.actuators * opt.rate_hz;  // deflections/s
+    const double backlog_slope = LinearFit(t_min, backlog).first;
+    const int64_t final_backlog = c.predictions_published - c.dropped_queue_full - c.samples_stored;
+    std::printf("\n  queues:\n");
+    std::printf(
+        "    accepted, not yet stored (predictions_published - dropped_queue_full - "
+        "samples_stored,\n    polled every 50 ms): max %" PRId64
+        ", mean of the last line %.0f, slope of the line means after warm-up %+.1f "
+        "samples/min,\n    after the drain %" PRId64 "\n",
+        backlog_max, rows.empty() ? 0.0 : rows.back().backlog_mean, backlog_slope, final_backlog);
+    std::printf(
+        "    sample writer queue (writer_queue_depth of the 1 s STATUS heartbeats): max %" PRId64
+        "\n",
+        wq_max);
+    std::printf("    the daemon's UDP socket receive queue (/proc/net/udp, polled): max %" PRId64
+                " bytes; kernel drops there %" PRId64 "\n",
+                rxq_max, daemon_drops);
+    std::printf(
+        "    LCM's own queue per subscription (capacity %d messages) cannot be read: LCM 1.3\n"
+        "    exposes no length; a message it drops shows as lost on the bus below.\n",
+        1 << 17);
+
+    // Samples.
+    std::printf("\n  samples:\n");
+    std::printf("    published deflections %" PRId64 ", delivered (accepted) %" PRId64
+                ", stored rows %" PRId64 " (samples_stored %" PRId64 ")\n",
+                published, delivered, stored_rows, c.samples_stored);
+    std::printf("    lost between LCM delivery and SQLite: %" PRId64 " (dropped_queue_full %" PRId64
+                "; stored values differing from published %" PRId64 ")\n",
+                delivered - stored_rows, c.dropped_queue_full, value_mismatches);
+    std::printf("    lost on the bus (published - delivered): %" PRId64
+                " (kernel drops at the daemon's socket %" PRId64 ", host RcvbufErrors %" PRId64
+                ")\n",
+                published - delivered, daemon_drops, rcvbuf_errors_after - rcvbuf_errors_before);
+    std::printf("    database integrity: %s; drain after the last sample %.2f s (%s)\n",
+                integrity.c_str(), drain_s, drained ? "caught up" : "TIMED OUT");
+
+    // Latency.
+    const LiveLatency& total = sampler->total();
+    Histogram ext_all_h = total.ext_in, s2s_all_h = total.s2s_in;
+    ext_all_h.Merge(total.ext_out);
+    s2s_all_h.Merge(total.s2s_out);
+    std::printf(
+        "\n  latency, deflection -> its prediction (ms; fixed-size histograms, 1 us below "
+        "1 ms, < 1.6 %% above; during = published while an identify request was "
+        "outstanding):\n");
+    std::printf("  %-34s %8s %8s %8s %8s %8s %9s %8s\n", "", "n", "p50", "p90", "p99", "p99.9",
+                "max", ">1ms");
+    if (opt.tap_deflections) {
+      PrintStatsRow("socket to socket, all", FromHistogram(s2s_all_h));
+      PrintStatsRow("socket to socket, outside ident.", FromHistogram(total.s2s_out));
+      PrintStatsRow("socket to socket, during ident.", FromHistogram(total.s2s_in));
+    }
+    PrintStatsRow("external, all", FromHistogram(ext_all_h));
+    PrintStatsRow("external, outside identification", FromHistogram(total.ext_out));
+    PrintStatsRow("external, during identification", FromHistogram(total.ext_in));
+
+    // Identifications.
+    std::vector<double> durations_ms;
+    int ok = 0;
+    std::printf("\n  identifications: %zu requested\n", identifications.size());
+    for (const Identification& id : identifications) {
+      const double sent_s = 1e-9 * static_cast<double>(Since(t0, id.sent));
+      if (!id.reply) {
+        std::printf("    t = %6.1f s %s: NO REPLY\n", sent_s, ActuatorId(id.actuator).c_str());
+        continue;
+      }
+      const double ms = 1e-6 * static_cast<double>(Since(id.sent, id.reply->received));
+      durations_ms.push_back(ms);
+      const auto& r = id.reply->reply;
+      ok += r.status == flexid::rpc_reply_t::kOk;
+      std::string what = r.error;
+      if (r.status == flexid::rpc_reply_t::kOk) {
+        const auto j = nlohmann::json::parse(r.result_json, nullptr, false);
+        if (j.is_object()) {
+          const nlohmann::json fit = j.value("fit", nlohmann::json::object());
+          char figures[96];
+          std::snprintf(figures, sizeof figures, ", fit %.1f %%, rmse %.4f mm, %lld samples",
+                        fit.value("fit_percent", NAN), fit.value("rmse_mm", NAN),
+                        static_cast<long long>(fit.value("samples", int64_t{0})));
+          what = "model version " + j.value("version", nlohmann::json()).dump() + ", trials " +
+                 j.value("trials", nlohmann::json()).dump() + figures;
+        }
+      }
+      std::printf("    t = %6.1f s %s: %7.0f ms, status %d, %s\n", sent_s,
+                  ActuatorId(id.actuator).c_str(), ms, r.status, what.c_str());
+    }
+    if (!durations_ms.empty()) {
+      std::vector<double> sorted = durations_ms;
+      std::sort(sorted.begin(), sorted.end());
+      std::printf("    %d ok of %zu; reply time min %.0f ms, median %.0f ms, max %.0f ms\n", ok,
+                  identifications.size(), sorted.front(), sorted[(sorted.size() - 1) / 2],
+                  sorted.back());
+    }
+
+    // Verdicts: figures beside the criteria, not a test.
+    const bool memory_flat = std::isfinite(rss_slope) && 10 * rss_slope < allowed_per_10min;
+    const bool queues_flat = static_cast<double>(backlog_max) < input_per_s &&
+                             std::isfinite(backlog_slope) && backlog_slope < 0.01 * input_per_s &&
+                             final_backlog == 0 && c.dropped_queue_full == 0;
+    const int64_t lost_store = delivered - stored_rows, lost_bus = published - delivered;
+    std::printf("\n  soak criteria (figure | criterion | verdict):\n");
+    std::printf(
+        "    memory flat: RSS slope %+.0f KiB per 10 min after warm-up | < 1 %% of the RSS "
+        "net of the per-sample arrays, %.0f KiB per 10 min (%.1f MiB; = %.2f bytes per "
+        "message of the %.1f M in 10 min) | %s\n",
+        10 * rss_slope, allowed_per_10min, base_kib / 1024.0,
+        allowed_per_10min * 1024.0 / messages_per_10min, messages_per_10min / 1e6,
+        memory_flat ? "flat" : "NOT FLAT");
+    std::printf("    no growing queues: backlog max %" PRId64
+                ", slope %+.1f /min, after drain %" PRId64 ", dropped_queue_full %" PRId64
+                " | max < 1 s of input (%.0f), slope < 1 %% of "
+                "that per min (%.0f), 0 after the drain, 0 dropped | %s\n",
+                backlog_max, backlog_slope, final_backlog, c.dropped_queue_full, input_per_s,
+                0.01 * input_per_s, queues_flat ? "not growing" : "GROWING OR DROPPING");
+    std::printf("    no lost samples (LCM delivery -> SQLite): %" PRId64 " | 0 (DESIGN.md) | %s\n",
+                lost_store, lost_store == 0 && drained ? "none lost" : "LOST");
+    std::printf("    lost on the bus: %" PRId64 " of %" PRId64
+                " | not a daemon target (UDP "
+                "loopback on a shared machine) | %s\n",
+                lost_bus, published, lost_bus == 0 ? "none" : "SOME LOST ON THE BUS");
+    std::printf(
+        "    prediction latency p99 socket to socket: outside %s ms, during %s ms | < 1 ms, "
+        "also during identification (DESIGN.md) | %s\n",
+        Ms(total.s2s_out.Quantile(0.99)).c_str(), Ms(total.s2s_in.Quantile(0.99)).c_str(),
+        total.s2s_out.Quantile(0.99) < 1000 &&
+                (total.s2s_in.count() == 0 || total.s2s_in.Quantile(0.99) < 1000)
+            ? "met"
+            : "NOT MET");
   }
 
   if (opt.keep) {
