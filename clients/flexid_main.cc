@@ -13,6 +13,7 @@ int main(int argc, char** argv) {
   CLI::App app{"flexid: identify, simulate and diagnose models of ionic soft actuators"};
   app.set_version_flag("--version", flexid::kVersion);
   app.require_subcommand(1);
+  app.fallthrough();  // --lcm and --db may also follow the command
   flexid::cli::RegisterTfCommand(app);
   flexid::cli::RegisterSimulateCommand(app);
   flexid::cli::RegisterPhysicsCommand(app);
@@ -28,6 +29,9 @@ int main(int argc, char** argv) {
   flexid::cli::RegisterBusCommands(app);
   app.add_option("--lcm", flexid::cli::LcmUrl(),
                  "LCM URL of the flexidd bus (default udpm://239.255.76.67:7667?ttl=0)");
+  app.add_option("--key-file", flexid::cli::KeyFilePath(),
+                 "Key for requests that change data (default $FLEXID_KEY_FILE, else "
+                 "var/flexidd.key)");
   app.add_option("--db", flexid::cli::DbPath(),
                  "Read this database file directly instead of asking flexidd (offline forms)");
   try {
