@@ -40,7 +40,7 @@ SampleWriterOptions Validated(SampleWriterOptions options) {
 }  // namespace
 
 SampleWriter::SampleWriter(const std::string& db_path, SampleWriterOptions options)
-    : options_(Validated(options)), database_(Database::Open(db_path)) {
+    : options_(Validated(options)), path_(db_path), database_(Database::Open(db_path)) {
   // Both buffers can hold a full queue, so neither Enqueue nor the writer allocates (and
   // holds the lock meanwhile) in steady state. Untouched capacity costs no memory.
   incoming_.reserve(options_.queue_capacity);
@@ -92,6 +92,31 @@ bool SampleWriter::Flush() {
   return done();
 }
 
+namespace {
+
+void Translate(std::vector<TrialSample>* samples, const std::map<int64_t, int64_t>& trial_ids) {
+  for (TrialSample& s : *samples)
+    if (const auto it = trial_ids.find(s.trial_id); it != trial_ids.end()) s.trial_id = it->second;
+}
+
+}  // namespace
+
+void SampleWriter::Reopen(const std::map<int64_t, int64_t>& trial_ids) {
+  {
+    std::lock_guard lock(mutex_);
+    Translate(&incoming_, trial_ids);
+    if (!reopen_) {
+      reopen_ = trial_ids;
+    } else {  // a second reopen before the first was done: compose the translations
+      for (auto& [from, to] : *reopen_)
+        if (const auto it = trial_ids.find(to); it != trial_ids.end()) to = it->second;
+      for (const auto& [from, to] : trial_ids) reopen_->emplace(from, to);
+    }
+    flush_requested_ = true;  // reopen now rather than at the next interval
+  }
+  wake_.notify_one();
+}
+
 size_t SampleWriter::queue_depth() const {
   std::lock_guard lock(mutex_);
   return incoming_.size() + batch_.size();
@@ -111,6 +136,40 @@ void SampleWriter::Run() noexcept {
     if (!stop_) wake_.wait_until(lock, deadline, [this] { return stop_ || flush_requested_; });
     const bool stopping = stop_;
     flush_requested_ = false;
+    if (reopen_) {
+      // Open without the lock (Enqueue and Reopen go on meanwhile; Reopen may compose
+      // reopen_ further, which is read again below).
+      lock.unlock();
+      std::optional<Database> fresh;
+      std::string error;
+      try {
+        fresh.emplace(Database::Open(path_));
+      } catch (const std::exception& e) {
+        error = e.what();
+      }
+      lock.lock();
+      if (fresh) {
+        database_ = std::move(*fresh);
+        Translate(&batch_, *reopen_);
+        reopen_.reset();
+      } else {
+        ++attempts_;
+        last_attempt_failed_ = true;
+        last_error_ = "cannot reopen the database: " + error + " (" +
+                      std::to_string(batch_.size() + incoming_.size()) +
+                      " samples kept queued; retrying every " + std::to_string(interval.count()) +
+                      " ms)";
+        flushed_.notify_all();
+        deadline = std::max(deadline + interval, std::chrono::steady_clock::now());
+        if (stopping) {
+          if (++failures_while_stopping > kRetriesAtShutdown) break;
+          lock.unlock();
+          std::this_thread::sleep_for(interval);
+          lock.lock();
+        }
+        continue;
+      }
+    }
     // Take what has queued. After a failed commit batch_ still holds its samples: the new
     // ones go behind them, keeping the order (both fit: see the constructor).
     if (batch_.empty()) {

@@ -16,6 +16,12 @@
 // batch stays queued and is retried every commit_interval; last_error() says what
 // happened until a commit succeeds again. Meanwhile the queue fills up and Enqueue returns
 // false for the samples that do not fit; the caller counts those drops.
+//
+// A database file deleted or replaced under the process (the caller notices: it owns the
+// path's identity): Reopen makes the writer commit to a fresh connection on the path from
+// its next commit on, with the trial ids of the queued samples translated to the trials
+// that continue them in the new file. Samples committed to the old file before that are
+// gone with it; they were counted in stored() and stay counted.
 #pragma once
 
 #include <atomic>
@@ -23,7 +29,9 @@
 #include <condition_variable>
 #include <cstddef>
 #include <cstdint>
+#include <map>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
@@ -73,6 +81,14 @@ class SampleWriter {
   // (Returns bool rather than void so that a failing disk cannot block the caller forever.)
   bool Flush();
 
+  // Commits to a new connection on the same path from the next commit on (see the file
+  // comment): queued samples of trial `from` become samples of trial `to` for each entry
+  // of trial_ids; samples of other trials stay as they are (and are counted in rejected()
+  // if their trial is not in the new file). Thread-safe, never waits for the disk. If the
+  // path cannot be opened, last_error() says so and the writer retries every interval,
+  // committing nothing meanwhile.
+  void Reopen(const std::map<int64_t, int64_t>& trial_ids);
+
   int64_t stored() const { return stored_.load(); }      // committed as new rows
   int64_t rejected() const { return rejected_.load(); }  // committed as duplicates/invalid
   int64_t enqueued() const { return enqueued_.load(); }  // accepted by Enqueue
@@ -87,6 +103,7 @@ class SampleWriter {
   void Run() noexcept;
 
   const SampleWriterOptions options_;
+  const std::string path_;
   Database database_;  // used only by the writer thread once it runs
 
   mutable std::mutex mutex_;
@@ -97,6 +114,8 @@ class SampleWriter {
   bool stop_ = false;
   bool flush_requested_ = false;
   bool exited_ = false;
+  // Reopen requested: translation for the samples in batch_ (incoming_ is translated at once).
+  std::optional<std::map<int64_t, int64_t>> reopen_;
   uint64_t attempts_ = 0;  // commit attempts finished
   bool last_attempt_failed_ = false;
   std::string last_error_;
