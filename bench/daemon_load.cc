@@ -84,7 +84,7 @@
 #include <flexid/rpc_reply_t.hpp>
 #include <flexid/rpc_request_t.hpp>
 #include <flexid/status_t.hpp>
-#include <flexid/trial_control_t.hpp>
+#include <flexid/trial_control2_t.hpp>
 #include <flexid/voltage_sample_t.hpp>
 #include <fstream>
 #include <future>
@@ -102,6 +102,7 @@
 
 #include "daemon/config.h"
 #include "daemon/daemon.h"
+#include "lcmtypes/message_auth.h"
 #include "storage/database.h"
 
 namespace {
@@ -313,9 +314,11 @@ class Publisher {
  public:
   // L00's history is published from history_start on, history_speed times faster than
   // real time; the run's tick k at t0 + k / rate.
+  // Trial control is signed with `key`, that of the daemon under test.
   Publisher(const Plan& plan, const std::string& url, Clock::time_point history_start,
-            double history_speed, Clock::time_point t0)
+            double history_speed, Clock::time_point t0, const flexid::auth::Key& key)
       : plan_(plan),
+        key_(key),
         lcm_(url),
         history_start_(history_start),
         history_speed_(history_speed),
@@ -339,7 +342,7 @@ class Publisher {
   void Run() {
     NameThread("bench-pub");
     for (int i = 0; i < plan_.actuators; ++i)
-      Control(i, flexid::trial_control_t::kStart, plan_.Utime(plan_.FirstK(i)) - 1, "daemon_load");
+      Control(i, flexid::trial_control2_t::kStart, plan_.Utime(plan_.FirstK(i)) - 1, "daemon_load");
     for (int64_t k = -plan_.history; k < 0; ++k) {
       std::this_thread::sleep_until(history_start_ + std::chrono::nanoseconds(std::llround(
                                                          static_cast<double>(k + plan_.history) *
@@ -369,8 +372,8 @@ class Publisher {
       for (; next_restart < plan_.restarts.size() && plan_.restarts[next_restart].first <= k;
            ++next_restart) {
         const int a = plan_.restarts[next_restart].second;
-        Control(a, flexid::trial_control_t::kStop, plan_.Utime(k) - 1, "");
-        Control(a, flexid::trial_control_t::kStart, plan_.Utime(k), "daemon_load next trial");
+        Control(a, flexid::trial_control2_t::kStop, plan_.Utime(k) - 1, "");
+        Control(a, flexid::trial_control2_t::kStart, plan_.Utime(k), "daemon_load next trial");
       }
       for (int i = 0; i < plan_.actuators; ++i) PublishSample(i, k);
       report_.max_tick_ns = std::max(report_.max_tick_ns, Since(start, Clock::now()));
@@ -379,7 +382,7 @@ class Publisher {
     report_.end = Clock::now();
     report_.cpu_ns = ThreadCpuNs() - cpu_start;
     for (int i = 0; i < plan_.actuators; ++i)
-      Control(i, flexid::trial_control_t::kStop, plan_.Utime(plan_.samples - 1) + 1, "");
+      Control(i, flexid::trial_control2_t::kStop, plan_.Utime(plan_.samples - 1) + 1, "");
   }
 
   const PublisherReport& report() const { return report_; }
@@ -410,15 +413,18 @@ class Publisher {
   }
 
   void Control(int actuator, int8_t action, int64_t utime, const std::string& protocol) {
-    flexid::trial_control_t c;
+    flexid::trial_control2_t c;
     c.utime = utime;
     c.actuator_id = ActuatorId(actuator);
     c.action = action;
     c.protocol = protocol;
+    c.sent_utime = flexid::auth::WallClockUtime();
+    flexid::auth::Sign(key_, &c);
     if (lcm_.publish("FLEXID/TRIAL", &c) != 0) ++report_.publish_failures;
   }
 
   const Plan plan_;
+  const flexid::auth::Key key_;
   lcm::LCM lcm_;
   const Clock::time_point history_start_;
   const double history_speed_;
@@ -520,6 +526,9 @@ class Subscriber {
         deflection_kernel_us_(plan.Slots(), kUnset),
         model_version_(plan.Slots(), -1) {}
 
+  // The daemon's key, for the requests that change data; before the first Call().
+  void SetKey(const flexid::auth::Key& key) { key_ = key; }
+
   // Starts the thread; false if LCM cannot be joined.
   bool Start() {
     std::promise<bool> ready;
@@ -569,9 +578,8 @@ class Subscriber {
     request.client_id = kClientId;
     request.method = method;
     request.args_json = args.dump();
-    request.utime = std::chrono::duration_cast<std::chrono::microseconds>(
-                        std::chrono::system_clock::now().time_since_epoch())
-                        .count();
+    request.utime = flexid::auth::WallClockUtime();
+    if (flexid::auth::ChangesData(method)) flexid::auth::Sign(key_, &request);  // "identify"
     std::unique_lock lock(mutex_);
     if (sent) *sent = Clock::now();
     lcm_->publish("FLEXID/RPC/REQUEST", &request);  // LCM's publish is thread-safe
@@ -674,6 +682,7 @@ class Subscriber {
   const Plan plan_;
   const std::string url_;
   const bool tap_;
+  flexid::auth::Key key_;  // SetKey()
   std::atomic<Clock::rep> t0_ns_{0};
   std::unique_ptr<lcm::LCM> lcm_;
   std::thread thread_;
@@ -1286,7 +1295,17 @@ int main(int argc, char** argv) {
       std::chrono::nanoseconds(std::llround(static_cast<double>(plan.history) * 1e9 /
                                             (opt.rate_hz * opt.history_speed)));
   subscriber.SetT0(t0);
-  Publisher publisher(plan, url, history_start, opt.history_speed, t0);
+  // The key the daemon created next to its database signs trial control and "identify".
+  flexid::auth::Key key;
+  try {
+    key = flexid::auth::ReadKeyFile(flexid::daemon::KeyFilePath(config));
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "daemon_load: %s\n", e.what());
+    subscriber.Stop();
+    return 1;
+  }
+  subscriber.SetKey(key);
+  Publisher publisher(plan, url, history_start, opt.history_speed, t0, key);
   if (!publisher.good()) {
     std::fprintf(stderr, "daemon_load: the publisher cannot join the bus\n");
     subscriber.Stop();

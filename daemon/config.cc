@@ -2,7 +2,12 @@
 
 #include <toml++/toml.h>
 
+#include <cerrno>
 #include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <limits>
 #include <regex>
 #include <set>
 #include <sstream>
@@ -35,7 +40,12 @@ void Read(const toml::table& table, const char* key, const std::string& where, T
     *out = **node->as_string();
   } else if constexpr (std::is_integral_v<T>) {
     if (!node->is_integer()) Fail(where + "." + key, "expected an integer");
-    *out = static_cast<T>(**node->as_integer());
+    const int64_t value = **node->as_integer();
+    // No silent wrap-around: commit_interval_ms = 4294967297 must not read as 1.
+    if (value < static_cast<int64_t>(std::numeric_limits<T>::min()) ||
+        value > static_cast<int64_t>(std::numeric_limits<T>::max()))
+      Fail(where + "." + key, "integer out of range");
+    *out = static_cast<T>(value);
   } else {
     if (node->is_integer())
       *out = static_cast<T>(**node->as_integer());
@@ -49,9 +59,18 @@ void Read(const toml::table& table, const char* key, const std::string& where, T
 }  // namespace
 
 Config LoadConfigFile(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) Fail(path, std::string("cannot open: ") + std::strerror(errno));
+  std::ostringstream text;
+  text << in.rdbuf();
+  if (in.bad()) Fail(path, "cannot read");
+  return ParseConfigText(text.str(), path);
+}
+
+Config ParseConfigText(std::string_view text, const std::string& path) {
   toml::table root;
   try {
-    root = toml::parse_file(path);
+    root = toml::parse(text, path);
   } catch (const toml::parse_error& e) {
     std::ostringstream where;
     where << path << ":" << e.source().begin.line << ":" << e.source().begin.column;
@@ -61,7 +80,8 @@ Config LoadConfigFile(const std::string& path) {
   CheckKeys(root,
             {"daemon_id", "database", "lcm_url", "channel_prefix", "log_file", "log_level",
              "commit_interval_ms", "auto_trials", "trial_idle_stop_s", "accept_unknown_actuators",
-             "max_message_bytes", "pin_threads", "actuators", "identification", "alerts"},
+             "max_message_bytes", "pin_threads", "auth_key_file", "auth_window_s", "actuators",
+             "identification", "alerts", "health"},
             path);
   Read(root, "daemon_id", path, &c.daemon_id);
   Read(root, "database", path, &c.database);
@@ -75,6 +95,8 @@ Config LoadConfigFile(const std::string& path) {
   Read(root, "accept_unknown_actuators", path, &c.accept_unknown_actuators);
   Read(root, "max_message_bytes", path, &c.max_message_bytes);
   Read(root, "pin_threads", path, &c.pin_threads);
+  Read(root, "auth_key_file", path, &c.auth_key_file);
+  Read(root, "auth_window_s", path, &c.auth_window_s);
   if (const toml::table* id = root["identification"].as_table()) {
     const std::string where = path + ": identification";
     CheckKeys(*id, {"zeros", "poles", "max_delay_s", "latest_trials"}, where);
@@ -96,6 +118,19 @@ Config LoadConfigFile(const std::string& path) {
     Read(*alerts, "min_effect_mm", where, &c.alerts.min_effect_mm);
     Read(*alerts, "dropout_s", where, &c.alerts.dropout_s);
     Read(*alerts, "rest_band_V", where, &c.alerts.rest_band_V);
+  }
+  if (const toml::table* health = root["health"].as_table()) {
+    const std::string where = path + ": health";
+    CheckKeys(*health,
+              {"input_silence_s", "input_silence_stop_s", "clock_jump_back_s",
+               "clock_jump_forward_s", "clock_jump_messages", "writer_queue_samples"},
+              where);
+    Read(*health, "input_silence_s", where, &c.health.input_silence_s);
+    Read(*health, "input_silence_stop_s", where, &c.health.input_silence_stop_s);
+    Read(*health, "clock_jump_back_s", where, &c.health.clock_jump_back_s);
+    Read(*health, "clock_jump_forward_s", where, &c.health.clock_jump_forward_s);
+    Read(*health, "clock_jump_messages", where, &c.health.clock_jump_messages);
+    Read(*health, "writer_queue_samples", where, &c.health.writer_queue_samples);
   }
   if (const toml::array* actuators = root["actuators"].as_array()) {
     for (size_t i = 0; i < actuators->size(); ++i) {
@@ -140,6 +175,8 @@ void Validate(const Config& c) {
     Fail("trial_idle_stop_s", "must be finite and > 0");
   if (c.max_message_bytes < 256 || c.max_message_bytes > (64 << 20))
     Fail("max_message_bytes", "must be 256 .. 64 MiB");
+  if (!(c.auth_window_s >= 1.0 && c.auth_window_s <= 3600.0))
+    Fail("auth_window_s", "must be 1 .. 3600 seconds");
   static const std::set<std::string> levels = {"trace", "debug", "info", "warn", "error"};
   if (!levels.count(c.log_level)) Fail("log_level", "expected trace, debug, info, warn or error");
   const IdentificationConfig& id = c.identification;
@@ -150,6 +187,18 @@ void Validate(const Config& c) {
   if (id.latest_trials < 1) Fail("identification.latest_trials", "must be >= 1");
   std::string why;
   if (!c.alerts.IsValid(&why)) Fail("alerts", why);
+  const HealthConfig& h = c.health;
+  auto positive = [](double v) { return v > 0.0 && std::isfinite(v); };
+  if (!positive(h.input_silence_s)) Fail("health.input_silence_s", "must be finite and > 0");
+  if (!(h.input_silence_stop_s == 0.0 ||
+        (positive(h.input_silence_stop_s) && h.input_silence_stop_s >= h.input_silence_s)))
+    Fail("health.input_silence_stop_s", "must be 0 (never) or >= input_silence_s");
+  if (!positive(h.clock_jump_back_s) || !positive(h.clock_jump_forward_s))
+    Fail("health", "clock_jump_back_s and clock_jump_forward_s must be finite and > 0");
+  if (h.clock_jump_messages < 1 || h.clock_jump_messages > 10000)
+    Fail("health.clock_jump_messages", "must be 1..10000");
+  if (h.writer_queue_samples < 100 || h.writer_queue_samples > (int64_t{1} << 26))
+    Fail("health.writer_queue_samples", "must be 100 .. 2^26");
   std::set<std::string> seen;
   for (const storage::Actuator& a : c.actuators) {
     if (!IsValidId(a.id))
@@ -159,6 +208,11 @@ void Validate(const Config& c) {
       if (!(v > 0.0) || !std::isfinite(v))
         Fail("actuators." + a.id, "dimensions must be finite and > 0");
   }
+}
+
+std::string KeyFilePath(const Config& c) {
+  if (!c.auth_key_file.empty()) return c.auth_key_file;
+  return (std::filesystem::path(c.database).parent_path() / "flexidd.key").string();
 }
 
 std::vector<std::string> Describe(const Config& c) {
@@ -174,6 +228,13 @@ std::vector<std::string> Describe(const Config& c) {
       "accept_unknown_actuators: " + std::string(c.accept_unknown_actuators ? "true" : "false"),
       "max_message_bytes: " + std::to_string(c.max_message_bytes) +
           ", pin_threads: " + std::string(c.pin_threads ? "true" : "false"),
+      "auth_key_file: " + KeyFilePath(c) + ", auth_window_s: " + std::to_string(c.auth_window_s),
+      "health: input_silence_s " + std::to_string(c.health.input_silence_s) +
+          ", input_silence_stop_s " + std::to_string(c.health.input_silence_stop_s) +
+          ", clock_jump_back_s " + std::to_string(c.health.clock_jump_back_s) +
+          ", clock_jump_forward_s " + std::to_string(c.health.clock_jump_forward_s) +
+          ", clock_jump_messages " + std::to_string(c.health.clock_jump_messages) +
+          ", writer_queue_samples " + std::to_string(c.health.writer_queue_samples),
       "identification: zeros " + std::to_string(c.identification.zeros) + ", poles " +
           std::to_string(c.identification.poles) + ", max_delay_s " +
           std::to_string(c.identification.max_delay_s) + ", latest_trials " +

@@ -4,6 +4,7 @@
 
 #include <cstdint>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "daemon/residual_monitor.h"
@@ -16,6 +17,21 @@ struct IdentificationConfig {
   int poles = 4;
   double max_delay_s = 10.0;
   int latest_trials = 2;  // "identify" without trial ids uses this many latest complete trials
+};
+
+// How the daemon notices faults other than bad messages (daemon/health.h, README
+// "Reliability so far"). Times of silence are wall-clock (steady) seconds: message time
+// stops when the source does. Clock jumps are in message time.
+struct HealthConfig {
+  double input_silence_s = 5.0;          // an open trial's actuator sends nothing this long: alert
+  double input_silence_stop_s = 60.0;    // ... this long: its trial ends "interrupted" (0: never)
+  double clock_jump_back_s = 5.0;        // a source's utime going back at least this far, and
+  double clock_jump_forward_s = 3600.0;  // forward (during a trial) this far, is a clock jump
+  int clock_jump_messages = 10;  // once this many consecutive messages agree on the new time
+  // Samples held in memory while the database cannot be written (queued for the writer);
+  // beyond this, samples are dropped and counted (dropped_queue_full). 2^18: 32 s of
+  // 16 actuators x 500 Hz.
+  int64_t writer_queue_samples = 1 << 18;
 };
 
 struct Config {
@@ -34,9 +50,17 @@ struct Config {
   // identification worker to the other CPUs. Keeps a fit from delaying predictions on a
   // small machine; leave it off when several daemons share a host.
   bool pin_threads = false;
+  // Requests that change data are signed with the key in this file (README "Security");
+  // empty: flexidd.key next to the database. Created (mode 0600) when absent; flexidd
+  // refuses to start on a file group or others may read or write.
+  std::string auth_key_file;
+  // A signed request's time must be within this many seconds of flexidd's wall clock, and
+  // its nonce is remembered this long (replay protection).
+  double auth_window_s = 30.0;
   std::vector<storage::Actuator> actuators;
   IdentificationConfig identification;
   MonitorOptions alerts;
+  HealthConfig health;
 };
 
 // Thrown for a bad file or flag: one line naming the input and the problem.
@@ -45,11 +69,19 @@ struct ConfigError : std::runtime_error {
 };
 
 // The file's settings over the defaults. Unknown keys are errors (a typo must not pass
-// silently).
+// silently); an integer that does not fit its setting is an error, not truncated.
 Config LoadConfigFile(const std::string& path);
+
+// The same from TOML text in memory; source_name names it in errors ("NAME:LINE:COLUMN:
+// problem" for TOML syntax, "NAME: key: problem" for content). Throws ConfigError only,
+// whatever the text (tests/fuzz/fuzz_config.cc).
+Config ParseConfigText(std::string_view text, const std::string& source_name);
 
 // Checks ranges and cross-field rules; throws ConfigError.
 void Validate(const Config& config);
+
+// The key file flexidd uses: auth_key_file, or flexidd.key in the database's directory.
+std::string KeyFilePath(const Config& config);
 
 // One line per setting, for the start-up log.
 std::vector<std::string> Describe(const Config& config);

@@ -25,6 +25,7 @@
 #include <flexid/rpc_reply_t.hpp>
 #include <flexid/rpc_request_t.hpp>
 #include <flexid/status_t.hpp>
+#include <flexid/trial_control2_t.hpp>
 #include <flexid/trial_control_t.hpp>
 #include <flexid/voltage_sample_t.hpp>
 #include <functional>
@@ -34,8 +35,10 @@
 #include <optional>
 #include <thread>
 
+#include "daemon/health.h"
 #include "daemon/rpc.h"
 #include "flexid/version.h"
+#include "lcmtypes/message_auth.h"
 #include "lcmtypes/wire_check.h"
 #include "model/diagnose.h"
 #include "model/identify_ts.h"
@@ -80,6 +83,27 @@ int64_t WallClockUtime() {
       .count();
 }
 
+// The verifier of signed requests, with the key from the configured file (created when
+// absent). Throws auth::KeyError naming the file.
+auth::Verifier MakeVerifier(const Config& config) {
+  const std::string path = KeyFilePath(config);
+  bool created = false;
+  const auth::Key key = auth::LoadOrCreateKeyFile(path, &created);
+  spdlog::info("{} [file: {}]", created ? "key created" : "key loaded", path);
+  auth::VerifierOptions options;
+  options.window_us = static_cast<int64_t>(config.auth_window_s * 1e6);
+  return auth::Verifier(key, options);
+}
+
+// A request's arguments for the log: at most 200 bytes, control characters as '?'.
+std::string ArgumentSummary(const std::string& args_json) {
+  std::string out = args_json.substr(0, 200);
+  for (char& c : out)
+    if (static_cast<unsigned char>(c) < 0x20 || c == 0x7f) c = '?';
+  if (args_json.size() > 200) out += "...";
+  return out;
+}
+
 // The active model of one actuator, run on the live voltage in message time.
 struct Predictor {
   int32_t version = 0;  // 0: no model
@@ -113,6 +137,12 @@ struct ActuatorState {
   int64_t last_active_utime = kNoTime;  // last voltage outside the rest band
   int64_t last_sample_utime = kNoTime;
   int64_t trial_start_utime = kNoTime;
+  std::string trial_protocol;
+  // Health (daemon/health.h): each stream's clock, and when the loop last heard from the
+  // actuator (steady clock: message time stops when the source does).
+  ClockJumpDetector voltage_clock, deflection_clock;
+  std::chrono::steady_clock::time_point last_heard{};
+  bool silent = false;  // "input_silent" raised, no message since
   Predictor predictor;
   std::unique_ptr<ResidualMonitor> monitor;
 };
@@ -135,13 +165,17 @@ struct Daemon::Impl {
   Config config;
   std::string config_path;
   storage::Database db;
+  // Requests and trial control that change data must be signed (message_auth.h). Loaded
+  // after the database opens (a database that cannot be written is the first thing to
+  // say) and before the bus is joined.
+  auth::Verifier verifier;
   std::unique_ptr<storage::SampleWriter> writer;
   lcm::LCM lcm;
   // Updated by the loop, read by status and by other threads (counters()): relaxed atomics.
   struct LiveCounters {
     std::atomic<int64_t> messages_received{0}, samples_accepted{0}, rejected_malformed{0},
         rejected_nonfinite{0}, rejected_out_of_order{0}, rejected_unknown_actuator{0},
-        dropped_queue_full{0}, predictions_published{0}, alerts_raised{0};
+        dropped_queue_full{0}, predictions_published{0}, alerts_raised{0}, refused_unauthorized{0};
   } counters;
   std::map<std::string, ActuatorState> actuators;
   std::atomic<bool> stop{false};
@@ -160,11 +194,22 @@ struct Daemon::Impl {
   bool worker_exit = false;
   std::vector<int> background_cpus;  // pin_threads: the writer's and the worker's CPUs
 
+  // Health (see "Health" below): the time of this loop pass, the database file's identity,
+  // the storage failure in progress, and alerts waiting for a writable database.
+  std::chrono::steady_clock::time_point loop_now = started;
+  std::optional<FileIdentity> database_identity;
+  bool storage_failing = false;
+  std::chrono::steady_clock::time_point storage_failing_since{};
+  int64_t drops_when_failing = 0, drops_reported = 0;
+  std::deque<storage::AlertRecord> unstored_alerts;
+
   Impl(Config c, std::string path)
       : config(std::move(c)),
         config_path(std::move(path)),
         db(storage::Database::Open(config.database)),
+        verifier(MakeVerifier(config)),
         lcm(WithReceiveBuffer(config.lcm_url)) {
+    database_identity = IdentityOf(config.database);  // none in memory: nothing to watch
     if (!lcm.good()) throw std::runtime_error("cannot join the LCM bus at " + config.lcm_url);
     // Signals are taken through signalfd in the loop. They are blocked here, before any
     // thread starts, so that every thread inherits the mask: a SIGTERM delivered to the
@@ -184,6 +229,7 @@ struct Daemon::Impl {
     storage::SampleWriterOptions options;
     options.commit_interval = std::chrono::milliseconds(config.commit_interval_ms);
     options.thread_nice = kBackgroundNice;
+    options.queue_capacity = static_cast<size_t>(config.health.writer_queue_samples);
     const int cpus = static_cast<int>(std::thread::hardware_concurrency());
     if (config.pin_threads && cpus >= 2) {
       for (int cpu = 1; cpu < cpus; ++cpu) background_cpus.push_back(cpu);
@@ -230,6 +276,10 @@ struct Daemon::Impl {
     ActuatorState& state = actuators[info.id];
     state.info = info;
     state.monitor = std::make_unique<ResidualMonitor>(info.id, config.alerts);
+    const HealthConfig& h = config.health;
+    state.voltage_clock = state.deflection_clock = ClockJumpDetector(
+        static_cast<int64_t>(h.clock_jump_back_s * 1e6),
+        static_cast<int64_t>(h.clock_jump_forward_s * 1e6), h.clock_jump_messages);
     if (const auto record = db.ActiveModel(info.id)) LoadModel(&state, *record);
   }
 
@@ -342,10 +392,7 @@ struct Daemon::Impl {
       ++counters.rejected_nonfinite;
       return;
     }
-    if (state->voltage_utime != kNoTime && message.utime <= state->voltage_utime) {
-      ++counters.rejected_out_of_order;
-      return;
-    }
+    if (!InTimeOrder(state, message.utime, /*voltage=*/true)) return;
     ++counters.samples_accepted;
     state->voltage_utime = message.utime;
     state->voltage_V = message.voltage_V;
@@ -373,10 +420,7 @@ struct Daemon::Impl {
       ++counters.rejected_nonfinite;
       return;
     }
-    if (state->deflection_utime != kNoTime && message.utime <= state->deflection_utime) {
-      ++counters.rejected_out_of_order;
-      return;
-    }
+    if (!InTimeOrder(state, message.utime, /*voltage=*/false)) return;
     ++counters.samples_accepted;
     state->deflection_utime = message.utime;
     // Paired with the voltage in force at its time (held since its last message).
@@ -405,25 +449,64 @@ struct Daemon::Impl {
     Raise(state, state->monitor->OnDeflection(message.utime, state->voltage_V, residual));
   }
 
+  // Trial control changes stored data, so it is signed: trial_control2_t with a valid
+  // signature, within the window of its sent_utime (wall clock; utime is message time and
+  // may be accelerated or replayed), with a nonce not seen before. The unsigned
+  // trial_control_t of earlier versions is refused (and counted) like a bad signature.
   void OnTrialControl(const lcm::ReceiveBuffer& rbuf) {
-    flexid::trial_control_t message;
-    if (!Decode(rbuf, &message, wire::kTrialControl)) return;
-    if (message.action != flexid::trial_control_t::kStart &&
-        message.action != flexid::trial_control_t::kStop) {
-      ++counters.rejected_malformed;
+    if (rbuf.data_size >= 8 && FingerprintOf(rbuf) == flexid::trial_control_t::getHash()) {
+      flexid::trial_control_t old;
+      const bool decoded = Decode(rbuf, &old, wire::kTrialControl);
+      ++counters.refused_unauthorized;
+      spdlog::warn(
+          "trial control refused [actuator: {}, action: {}] not authorised: unsigned "
+          "trial_control_t (send a signed trial_control2_t)",
+          decoded ? old.actuator_id : "?", decoded ? old.action : 0);
       return;
     }
+    flexid::trial_control2_t message;
+    if (!Decode(rbuf, &message, wire::kTrialControl2)) return;
+    const std::string refusal = verifier.Check(message, auth::WallClockUtime());
+    if (!refusal.empty()) {
+      ++counters.refused_unauthorized;
+      spdlog::warn(
+          "trial control refused [actuator: {}, action: {}, protocol: {}] not "
+          "authorised: {}",
+          message.actuator_id, message.action, ArgumentSummary(message.protocol), refusal);
+      return;
+    }
+    if (message.action != flexid::trial_control2_t::kStart &&
+        message.action != flexid::trial_control2_t::kStop) {
+      ++counters.rejected_malformed;
+      spdlog::warn("trial control rejected [actuator: {}, action: {}] unknown action",
+                   message.actuator_id, message.action);
+      return;
+    }
+    spdlog::info("trial control accepted [actuator: {}, action: {}, protocol: {}]",
+                 message.actuator_id,
+                 message.action == flexid::trial_control2_t::kStart ? "start" : "stop",
+                 ArgumentSummary(message.protocol));
     ActuatorState* state = KnownOrNewActuator(message.actuator_id);
     if (!state) return;
     if (state->trial_id != 0) StopTrial(state, message.utime, storage::TrialState::kComplete);
-    if (message.action == flexid::trial_control_t::kStart)
+    if (message.action == flexid::trial_control2_t::kStart)
       StartTrial(state, message.protocol, message.utime, false);
+  }
+
+  // The type fingerprint an encoded LCM message starts with (8 bytes, big-endian).
+  static int64_t FingerprintOf(const lcm::ReceiveBuffer& rbuf) {
+    const auto* bytes = static_cast<const uint8_t*>(rbuf.data);
+    uint64_t value = 0;
+    for (int i = 0; i < 8; ++i) value = (value << 8) | bytes[i];
+    return static_cast<int64_t>(value);
   }
 
   void StartTrial(ActuatorState* state, const std::string& protocol, int64_t utime,
                   bool automatic) {
     state->trial_id = db.StartTrial(state->info.id, protocol, utime);
     state->trial_start_utime = utime;
+    state->trial_protocol = protocol;
+    state->last_heard = loop_now;  // input silence counts from the start of a trial
     state->automatic_trial = automatic;
     state->last_sample_utime = kNoTime;
     spdlog::info("trial started [actuator: {}, trial: {}, protocol: {}]", state->info.id,
@@ -534,7 +617,31 @@ struct Daemon::Impl {
     flexid::rpc_request_t request;
     if (!Decode(rbuf, &request, wire::kRpcRequest)) return;
     RpcContext context{request.request_id, request.client_id};
+    // Methods that change data need a valid signature, a fresh time and a new nonce; every
+    // one is logged with its outcome. Read-only methods need none (an `auth` is ignored).
+    const bool changes_data = ChangesData(request.method);
+    if (changes_data) {
+      const std::string refusal = verifier.Check(request, auth::WallClockUtime());
+      if (!refusal.empty()) {
+        ++counters.refused_unauthorized;
+        spdlog::warn(
+            "request refused [method: {}, client: {}, request: {}, args: {}] not authorised: {}",
+            ArgumentSummary(request.method), ArgumentSummary(request.client_id),
+            ArgumentSummary(request.request_id), ArgumentSummary(request.args_json), refusal);
+        Reply(context,
+              {flexid::rpc_reply_t::kUnauthorized, nullptr, "not authorised: " + refusal, false});
+        return;
+      }
+    }
     RpcOutcome outcome = HandleRequest(request);
+    if (changes_data)
+      spdlog::info("request accepted [method: {}, client: {}, request: {}, args: {}] {}",
+                   ArgumentSummary(request.method), ArgumentSummary(request.client_id),
+                   ArgumentSummary(request.request_id), ArgumentSummary(request.args_json),
+                   outcome.deferred ? "running on the worker"
+                   : outcome.status == flexid::rpc_reply_t::kOk
+                       ? "done"
+                       : "failed: " + ArgumentSummary(outcome.error));
     if (outcome.deferred) return;  // identify: answered when the worker finishes
     Reply(context, outcome);
   }
@@ -632,6 +739,252 @@ struct Daemon::Impl {
   }
 
   // ---------------------------------------------------------------------------------------
+  // Health: faults other than bad messages (daemon/health.h; the documented behaviour is in
+  // tests/daemon_fault_matrix_test.cc). Checked once a second by the loop, and for clock
+  // jumps on every sample. What happened is logged and published as an alert on
+  // FLEXID/ALERT (actuator_id empty when it concerns the daemon itself).
+  // ---------------------------------------------------------------------------------------
+
+  // The latest message time the daemon has seen (health alerts are stamped with it), or
+  // the wall clock before any message.
+  int64_t LatestUtime() const {
+    int64_t latest = kNoTime;
+    for (const auto& [id, state] : actuators)
+      latest = std::max({latest, state.voltage_utime, state.deflection_utime});
+    return latest != kNoTime ? latest : WallClockUtime();
+  }
+
+  // Publishes, counts and logs a health alert, and stores it unless storage is failing
+  // (the loop must not wait on a locked database): then it is stored on recovery.
+  void RaiseHealth(const std::string& actuator_id, const std::string& kind, int severity,
+                   int64_t start_utime, int64_t utime, const std::string& text) {
+    flexid::alert_t out;
+    out.utime = utime;
+    out.actuator_id = actuator_id;
+    out.kind = kind;
+    out.severity = static_cast<int8_t>(severity);
+    out.start_utime = start_utime;
+    out.end_utime = utime;
+    out.magnitude_mm = 0.0;
+    out.threshold_mm = 0.0;
+    out.text = text;
+    lcm.publish(config.channel_prefix + "/ALERT", &out);
+    ++counters.alerts_raised;
+    spdlog::log(severity == 0   ? spdlog::level::info
+                : severity == 1 ? spdlog::level::warn
+                                : spdlog::level::err,
+                "{} [kind: {}, actuator: {}]", text, kind, actuator_id);
+    if (unstored_alerts.size() < 1000)
+      unstored_alerts.push_back(
+          {0, actuator_id, kind, severity, utime, start_utime, utime, 0.0, 0.0, text});
+    StoreHealthAlerts();
+  }
+
+  void StoreHealthAlerts() {
+    while (!storage_failing && !unstored_alerts.empty()) {
+      try {
+        db.StoreAlert(unstored_alerts.front());
+      } catch (const std::exception& e) {
+        spdlog::warn("alert not stored yet [error: {}]", e.what());
+        return;
+      }
+      unstored_alerts.pop_front();
+    }
+  }
+
+  // Records that a message of the actuator arrived; says so if it had fallen silent.
+  void Heard(ActuatorState* state) {
+    if (state->silent) {
+      state->silent = false;
+      const double quiet_s = std::chrono::duration<double>(loop_now - state->last_heard).count();
+      RaiseHealth(
+          state->info.id, "input_resumed", 0, LatestUtime(), LatestUtime(),
+          fmt::format("input from {} resumed after {:.1f} s of silence", state->info.id, quiet_s));
+    }
+    state->last_heard = loop_now;
+  }
+
+  // A sample's time against its stream: in order (true), out of order (false, counted), or
+  // the first on a new time base after the source's clock jumped (true, see OnClockJump).
+  bool InTimeOrder(ActuatorState* state, int64_t utime, bool voltage) {
+    Heard(state);
+    const int64_t last = voltage ? state->voltage_utime : state->deflection_utime;
+    ClockJumpDetector& clock = voltage ? state->voltage_clock : state->deflection_clock;
+    switch (clock.Check(last, utime, state->trial_id != 0)) {
+      case ClockJumpDetector::Verdict::kAccept:
+        return true;
+      case ClockJumpDetector::Verdict::kReject:
+        ++counters.rejected_out_of_order;
+        return false;
+      case ClockJumpDetector::Verdict::kJumped:
+        OnClockJump(state, clock.jump_us(), utime);
+        return true;
+    }
+    return false;
+  }
+
+  // The source's clock jumped: the trial in progress ends "interrupted" at its last sample,
+  // a manual trial continues as a new trial from `utime` (an automatic one restarts by the
+  // usual rule), both streams and the prediction start over on the new time base.
+  void OnClockJump(ActuatorState* state, int64_t jump_us, int64_t utime) {
+    const int64_t old_trial = state->trial_id;
+    const bool automatic = state->automatic_trial;
+    const std::string protocol = state->trial_protocol;
+    if (old_trial != 0)
+      StopTrial(state, std::max(state->voltage_utime, state->deflection_utime),
+                storage::TrialState::kInterrupted);
+    const int64_t previous = std::max(state->voltage_utime, state->deflection_utime);
+    state->voltage_utime = state->deflection_utime = kNoTime;
+    state->voltage_clock.Reset();
+    state->deflection_clock.Reset();
+    state->last_active_utime = kNoTime;
+    state->last_sample_utime = kNoTime;
+    // The predictor and the monitor run in message time: start them again.
+    std::optional<storage::ModelRecord> record;
+    try {
+      if (state->predictor.ready()) record = db.ActiveModel(state->info.id);
+    } catch (const std::exception& e) {
+      spdlog::warn("cannot reload the model [actuator: {}, error: {}]", state->info.id, e.what());
+    }
+    if (record) {
+      LoadModel(state, *record);
+    } else {
+      state->predictor = Predictor{};
+      state->monitor = std::make_unique<ResidualMonitor>(state->info.id, config.alerts);
+    }
+    std::string text = fmt::format("source clock of {} jumped {} by {:.1f} s", state->info.id,
+                                   jump_us < 0 ? "back" : "forward",
+                                   std::abs(static_cast<double>(jump_us)) * 1e-6);
+    if (old_trial != 0) {
+      text += fmt::format("; trial {} ended interrupted at its last sample", old_trial);
+      if (!automatic) {
+        StartTrial(state, protocol, utime, false);
+        text += fmt::format(", trial {} continues it on the new time base", state->trial_id);
+      }
+    }
+    RaiseHealth(state->info.id, "clock_jump", 1, previous, utime, text);
+  }
+
+  void CheckHealth() {
+    try {
+      CheckStorage();
+      CheckDatabaseFile();
+      CheckSilence();
+    } catch (const std::exception& e) {  // e.g. a trial that cannot be ended: next second
+      spdlog::error("health check failed [error: {}]", e.what());
+    }
+  }
+
+  // The writer's commits failing (disk full, read-only file system, a lock held too long):
+  // said once when it starts, drops said as they happen (at most once a second), and the
+  // recovery said with what it cost.
+  void CheckStorage() {
+    const std::string error = writer->last_error();
+    const int64_t dropped = counters.dropped_queue_full.load(std::memory_order_relaxed);
+    const int64_t utime = LatestUtime();
+    if (!error.empty() && !storage_failing) {
+      storage_failing = true;
+      storage_failing_since = loop_now;
+      drops_when_failing = drops_reported = dropped;
+      RaiseHealth("", "storage_failing", 2, utime, utime,
+                  fmt::format("storage failing: {}: {}; samples are held in memory (at most {}) "
+                              "and retried, and none counts as stored until it is committed",
+                              StorageProblem(error), error, config.health.writer_queue_samples));
+    } else if (storage_failing && !error.empty() && dropped > drops_reported) {
+      if (drops_reported == drops_when_failing)
+        RaiseHealth("", "samples_dropped", 2, utime, utime,
+                    fmt::format("storage failing: {}: the {} samples held in memory fill the "
+                                "writer queue; new samples are dropped and counted until storage "
+                                "recovers",
+                                StorageProblem(error), config.health.writer_queue_samples));
+      spdlog::error("samples dropped while storage fails [dropped: {}, since it failed: {}]",
+                    dropped - drops_reported, dropped - drops_when_failing);
+      drops_reported = dropped;
+    } else if (storage_failing && error.empty()) {
+      storage_failing = false;
+      const double failed_s =
+          std::chrono::duration<double>(loop_now - storage_failing_since).count();
+      RaiseHealth("", "storage_recovered", 0, utime, utime,
+                  fmt::format("storage recovered after {:.0f} s: the samples held meanwhile are "
+                              "committed; {} samples were dropped (writer queue full)",
+                              failed_s, dropped - drops_when_failing));
+    }
+  }
+
+  // The database file deleted or replaced under the daemon: SQLite would go on writing to
+  // the old (unlinked) file, and every new sample would vanish with it. A new database is
+  // opened at the path; the trials recording go on there as new trials.
+  void CheckDatabaseFile() {
+    if (!database_identity) return;
+    const std::optional<FileIdentity> current = IdentityOf(config.database);
+    if (current && *current == *database_identity) return;
+    const char* what = current ? "replaced" : "deleted";
+    if (!current) {
+      // The old file's -wal and -shm are the old connections'; a new database must not
+      // start from them.
+      for (const char* suffix : {"-wal", "-shm"}) unlink((config.database + suffix).c_str());
+    }
+    try {
+      db = storage::Database::Open(config.database);
+    } catch (const std::exception& e) {
+      spdlog::error(
+          "database file {} under the daemon and no new one can be opened; retrying "
+          "every second [path: {}, error: {}]",
+          what, config.database, e.what());
+      return;
+    }
+    database_identity = IdentityOf(config.database);
+    std::map<int64_t, int64_t> trial_ids;
+    std::string continued;
+    for (auto& [id, state] : actuators) {
+      try {
+        db.UpsertActuator(state.info);
+        if (state.trial_id == 0) continue;
+        const int64_t old_trial = state.trial_id;
+        state.trial_id = db.StartTrial(id, state.trial_protocol, state.trial_start_utime);
+        trial_ids[old_trial] = state.trial_id;
+        continued +=
+            fmt::format("{}{} -> {}", continued.empty() ? "" : ", ", old_trial, state.trial_id);
+      } catch (const std::exception& e) {
+        spdlog::error("cannot set up {} in the new database [error: {}]", id, e.what());
+      }
+    }
+    writer->Reopen(trial_ids);
+    const int64_t utime = LatestUtime();
+    RaiseHealth("", "database_replaced", 2, utime, utime,
+                fmt::format("database file {} was {} under the daemon: a new database is open "
+                            "there; what the old file held is gone with it (including {} "
+                            "samples stored since this daemon started); recording goes on{}",
+                            config.database, what, writer->stored(),
+                            continued.empty() ? "" : " [trials: " + continued + "]"));
+  }
+
+  // An actuator with a trial recording that has fallen silent: said after input_silence_s,
+  // and its trial ends "interrupted" after input_silence_stop_s.
+  void CheckSilence() {
+    const HealthConfig& h = config.health;
+    for (auto& [id, state] : actuators) {
+      if (state.trial_id == 0 || state.last_heard == std::chrono::steady_clock::time_point{})
+        continue;
+      const double quiet_s = std::chrono::duration<double>(loop_now - state.last_heard).count();
+      if (!state.silent && quiet_s >= h.input_silence_s) {
+        state.silent = true;
+        RaiseHealth(id, "input_silent", 1, LatestUtime(), LatestUtime(),
+                    fmt::format("no input from {} for {:.0f} s while trial {} records", id, quiet_s,
+                                state.trial_id));
+      }
+      if (state.silent && h.input_silence_stop_s > 0.0 && quiet_s >= h.input_silence_stop_s) {
+        const int64_t trial = state.trial_id;
+        StopTrial(&state, state.last_sample_utime, storage::TrialState::kInterrupted);
+        RaiseHealth(id, "input_silent", 1, LatestUtime(), LatestUtime(),
+                    fmt::format("no input from {} for {:.0f} s: trial {} ended interrupted at "
+                                "its last sample",
+                                id, quiet_s, trial));
+      }
+    }
+  }
+
+  // ---------------------------------------------------------------------------------------
   // Loop
   // ---------------------------------------------------------------------------------------
 
@@ -676,6 +1029,7 @@ struct Daemon::Impl {
     c.dropped_queue_full = counters.dropped_queue_full.load(std::memory_order_relaxed);
     c.predictions_published = counters.predictions_published.load(std::memory_order_relaxed);
     c.alerts_raised = counters.alerts_raised.load(std::memory_order_relaxed);
+    c.refused_unauthorized = counters.refused_unauthorized.load(std::memory_order_relaxed);
     c.samples_stored = writer->stored();
     return c;
   }
@@ -720,6 +1074,7 @@ struct Daemon::Impl {
     const int until_status = static_cast<int>(std::max<int64_t>(
         0, std::chrono::duration_cast<std::chrono::milliseconds>(next_status - now).count()));
     const int ready = poll(fds, 3, std::min(timeout_ms, until_status));
+    loop_now = std::chrono::steady_clock::now();
     if (ready > 0) {
       // Drain what LCM has, bounded so that signals and the timer are served.
       if (fds[0].revents & POLLIN)
@@ -729,6 +1084,8 @@ struct Daemon::Impl {
       if (fds[2].revents & POLLIN) DrainFinished();
     }
     if (std::chrono::steady_clock::now() >= next_status) {
+      loop_now = std::chrono::steady_clock::now();
+      CheckHealth();
       PublishStatus();
       next_status += std::chrono::seconds(1);
       if (next_status < std::chrono::steady_clock::now())
@@ -827,6 +1184,12 @@ IdentifyResult RunIdentification(const std::string& database, const std::string&
                                    ? model::FromTransferFunction(estimate.local[0].estimate.tf)
                                    : model::FromTsModel(estimate.model);
     doc.extra["fit"] = model::FitFiguresToJson(estimate.fit);
+    // Each local model's level and own fit figures, where `flexid identify` puts them.
+    if (estimate.local.size() == 1)
+      doc.extra["level_V"] = estimate.local[0].level_V;
+    else
+      for (size_t i = 0; i < estimate.local.size() && i < doc.local_extra.size(); ++i)
+        doc.local_extra[i]["fit"] = model::FitFiguresToJson(estimate.local[i].estimate.fit);
     doc.extra["identified_from_trials"] = trial_ids;
     storage::ModelRecord record;
     record.actuator_id = actuator_id;
@@ -882,6 +1245,7 @@ RpcOutcome Daemon::Impl::HandleRequest(const flexid::rpc_request_t& request) {
                {"dropped_queue_full", c.dropped_queue_full},
                {"predictions_published", c.predictions_published},
                {"alerts_raised", c.alerts_raised},
+               {"requests_refused_unauthorized", c.refused_unauthorized},
                {"identification_running", identifying.load()}},
               "",
               false};
@@ -920,22 +1284,7 @@ RpcOutcome Daemon::Impl::HandleRequest(const flexid::rpc_request_t& request) {
       const int64_t after = IntegerArgument(args, "after_utime", INT64_MIN, INT64_MIN, INT64_MAX);
       const int64_t limit = IntegerArgument(args, "limit", 5000, 1, 20000);
       const std::vector<storage::Sample> page = db.SamplesPage(id, after, offset, limit);
-      nlohmann::json utime = nlohmann::json::array(), volts = nlohmann::json::array(),
-                     mm = nlohmann::json::array();
-      for (const storage::Sample& s : page) {
-        utime.push_back(s.utime);
-        volts.push_back(s.voltage_V);
-        mm.push_back(s.deflection_mm);
-      }
-      return {Reply::kOk,
-              {{"trial", storage::TrialJson(*trial)},
-               {"offset", offset},
-               {"total", trial->samples},
-               {"utime", utime},
-               {"voltage_V", volts},
-               {"deflection_mm", mm}},
-              "",
-              false};
+      return {Reply::kOk, storage::SamplesPageJson(*trial, offset, page), "", false};
     }
     if (method == "models") {
       ActuatorState* state = actuator_of(true);

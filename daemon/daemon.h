@@ -8,11 +8,13 @@
 //                                     --> T-S prediction (StreamingSimulator, message time)
 //                                          --> FLEXID/<id>/PREDICTION
 //                                          --> ResidualMonitor --> FLEXID/ALERT (+ SQLite)
-//   FLEXID/RPC/REQUEST --> methods (rpc.h); "identify" runs on the identification worker,
+//   FLEXID/RPC/REQUEST --> signature check for methods that change data (message_auth.h)
+//        --> methods (rpc.h); "identify" runs on the identification worker,
 //        stores a new model version, hot-swaps the predictor and then replies.
 //   FLEXID/STATUS <-- counters, once a second.
 //
-// The daemon works in message time (utime), never wall-clock time, so an accelerated rig
+// The daemon works in message time (utime), never wall-clock time (one exception: the
+// replay window of signed requests, lcmtypes/message_auth.h), so an accelerated rig
 // or a replayed log behaves like a real-time run. Trial starts, stops and alerts are rare
 // and written on the loop's own connection (a few hundred microseconds in WAL mode).
 #pragma once
@@ -36,6 +38,9 @@ struct Counters {
   int64_t predictions_published = 0;
   int64_t alerts_raised = 0;
   int64_t samples_stored = 0;  // acknowledged: committed
+  // RPC requests and trial control that would change data, refused as unsigned, badly
+  // signed, stale or replayed (README "Security").
+  int64_t refused_unauthorized = 0;
 };
 
 class Daemon {

@@ -1,5 +1,5 @@
-// flexidd [--config FILE] [--db PATH] [--lcm URL]: the flexid lab service. Flags override
-// the file; with no file it runs on the embedded defaults (DESIGN.md).
+// flexidd [--config FILE] [--db PATH] [--lcm URL] [--key-file PATH]: the flexid lab service. Flags
+// override the file; with no file it runs on the embedded defaults (DESIGN.md).
 #include <pthread.h>
 #include <spdlog/spdlog.h>
 
@@ -19,13 +19,16 @@ int main(int argc, char** argv) {
       "flexidd: records actuator trials from the bus, predicts live, raises alerts, identifies on "
       "demand"};
   app.set_version_flag("--version", flexid::kVersion);
-  std::string config_path, db, lcm_url, log_file, daemon_id;
+  std::string config_path, db, lcm_url, log_file, daemon_id, key_file;
   app.add_option("--config", config_path,
                  "TOML configuration file (deploy/flexidd.toml is an example)");
   app.add_option("--db", db, "SQLite database file (default var/flexid.db)");
   app.add_option("--lcm", lcm_url, "LCM URL (default udpm://239.255.76.67:7667?ttl=0)");
   app.add_option("--log-file", log_file, "Rotating log file (default var/flexidd.log)");
   app.add_option("--daemon-id", daemon_id, "Name of this instance on the bus");
+  app.add_option("--key-file", key_file,
+                 "Key of requests that change data (default flexidd.key next to the database; "
+                 "created, mode 0600, when absent)");
   app.footer(
       "Example:\n  flexidd --config /etc/flexid/flexidd.toml\n  flexidd --db var/flexid.db --lcm "
       "'udpm://239.255.76.67:7667?ttl=0'");
@@ -44,6 +47,7 @@ int main(int argc, char** argv) {
     if (!lcm_url.empty()) config.lcm_url = lcm_url;
     if (!log_file.empty()) config.log_file = log_file;
     if (!daemon_id.empty()) config.daemon_id = daemon_id;
+    if (!key_file.empty()) config.auth_key_file = key_file;
     flexid::daemon::Validate(config);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "flexidd: %s\n", e.what());

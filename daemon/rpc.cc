@@ -1,5 +1,6 @@
 #include "daemon/rpc.h"
 
+#include <limits>
 #include <regex>
 
 namespace flexid::daemon {
@@ -36,8 +37,13 @@ int64_t IntegerArgument(const nlohmann::json& args, const char* name, int64_t fa
   if (it == args.end()) return fallback;
   if (!it->is_number_integer())
     throw ArgumentError(std::string("argument \"") + name + "\" must be an integer");
-  const int64_t value = it->get<int64_t>();
-  if (value < min || value > max)
+  // JSON integers above INT64_MAX parse as unsigned; get<int64_t>() would wrap them to
+  // negative values (found by tests/fuzz/fuzz_rpc_arguments.cc).
+  const bool above_int64 =
+      it->is_number_unsigned() &&
+      it->get<uint64_t>() > static_cast<uint64_t>(std::numeric_limits<int64_t>::max());
+  const int64_t value = above_int64 ? 0 : it->get<int64_t>();
+  if (above_int64 || value < min || value > max)
     throw ArgumentError(std::string("argument \"") + name + "\" must be in [" +
                         std::to_string(min) + ", " + std::to_string(max) + "]");
   return value;

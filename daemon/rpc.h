@@ -1,15 +1,22 @@
 // RPC over the bus (DESIGN.md): a request on FLEXID/RPC/REQUEST names its method and
 // carries JSON arguments; the reply goes to FLEXID/RPC/REPLY/<client_id> with the request
 // id, a status and a JSON result. Read-only methods: status, actuators, trials,
-// trial_samples, models, model, alerts. Methods that change data: identify, trial_start,
-// trial_stop, model_activate.
+// trial_samples, models, model, alerts. Methods that change data (ChangesData(): identify,
+// trial_start, trial_stop, model_activate, diagnose, any other) must be signed
+// (lcmtypes/message_auth.h).
 #pragma once
 
 #include <cstdint>
 #include <nlohmann/json.hpp>
 #include <string>
 
+#include "lcmtypes/message_auth.h"
+
 namespace flexid::daemon {
+
+// Which methods change data: one list, in lcmtypes/message_auth.h, because the clients
+// decide by it whether to sign and flexidd whether to require a signature.
+using auth::ChangesData;
 
 struct RpcContext {
   std::string request_id;

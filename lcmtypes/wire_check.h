@@ -4,13 +4,14 @@
 // not for being positive: a crafted length of INT32_MIN makes decode() copy ~4 GB and the
 // process dies. Every message that comes from the bus is therefore walked here first:
 // the 8-byte type fingerprint, then each field in the order of its .lcm file (big-endian;
-// a string is an int32 length counting its terminating NUL, then the bytes, NUL last;
-// an array's length is the preceding count field). The layouts below must follow the
+// a string is an int32 length counting its terminating NUL, then the bytes, NUL last and
+// nowhere else; an array's length is the preceding count field). The layouts below must follow the
 // .lcm files; tests/wire_check_test.cc encodes every type and checks that they do.
 #pragma once
 
 #include <cstddef>
 #include <cstdint>
+#include <cstring>
 #include <initializer_list>
 
 namespace flexid::wire {
@@ -53,7 +54,12 @@ inline bool WellFormed(const void* data, size_t size, std::initializer_list<Fiel
       case Field::kString:
         if (!read_be(4, &value) || value < 1 || static_cast<uint64_t>(value) > size - pos)
           return false;
-        if (bytes[pos + static_cast<size_t>(value) - 1] != 0) return false;
+        // NUL last and nowhere else: LCM's encoders write strlen() bytes, so a string
+        // with an embedded NUL does not survive decode -> encode (a reply echoing such a
+        // request_id would be sent with unwritten bytes at its end).
+        if (bytes[pos + static_cast<size_t>(value) - 1] != 0 ||
+            std::memchr(bytes + pos, 0, static_cast<size_t>(value) - 1) != nullptr)
+          return false;
         pos += static_cast<size_t>(value);
         break;
       case Field::kDoubleArray:
@@ -77,6 +83,8 @@ inline constexpr std::initializer_list<Field> kAlert = {F::kInt64,  F::kString, 
                                                         F::kDouble, F::kDouble, F::kString};
 inline constexpr std::initializer_list<Field> kTrialControl = {F::kInt64, F::kString, F::kInt8,
                                                                F::kString};
+inline constexpr std::initializer_list<Field> kTrialControl2 = {
+    F::kInt64, F::kString, F::kInt8, F::kString, F::kInt64, F::kString, F::kString};
 inline constexpr std::initializer_list<Field> kRpcRequest = {
     F::kInt64, F::kString, F::kString, F::kString, F::kString, F::kString, F::kString};
 inline constexpr std::initializer_list<Field> kRpcReply = {F::kInt64, F::kString, F::kString,

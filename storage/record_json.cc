@@ -49,6 +49,23 @@ nlohmann::json ModelSummaryJson(const ModelRecord& model) {
           {"fit", fit}};
 }
 
+nlohmann::json SamplesPageJson(const Trial& trial, int64_t offset,
+                               const std::vector<Sample>& page) {
+  nlohmann::json utime = nlohmann::json::array(), volts = nlohmann::json::array(),
+                 mm = nlohmann::json::array();
+  for (const Sample& s : page) {
+    utime.push_back(s.utime);
+    volts.push_back(s.voltage_V);
+    mm.push_back(s.deflection_mm);
+  }
+  return {{"trial", TrialJson(trial)},
+          {"offset", offset},
+          {"total", trial.samples},
+          {"utime", utime},
+          {"voltage_V", volts},
+          {"deflection_mm", mm}};
+}
+
 nlohmann::json ActuatorJson(const Actuator& actuator) {
   return {{"id", actuator.id},
           {"length_mm", actuator.length_mm},

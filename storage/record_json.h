@@ -23,6 +23,11 @@ nlohmann::json AlertJson(const AlertRecord& alert);
 //  "flexid_version", "fit"}: everything but the model document itself.
 nlohmann::json ModelSummaryJson(const ModelRecord& model);
 
+// One page of a trial's samples, as the trial_samples request returns it: {"trial",
+// "offset", "total", "utime": [...], "voltage_V": [...], "deflection_mm": [...]}.
+nlohmann::json SamplesPageJson(const Trial& trial, int64_t offset,
+                               const std::vector<Sample>& page);
+
 // {"id", "length_mm", "width_mm", "thickness_mm", "material", "electrolyte",
 //  "concentration_M"}
 nlohmann::json ActuatorJson(const Actuator& actuator);

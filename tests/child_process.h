@@ -18,6 +18,8 @@
 #include <thread>
 #include <vector>
 
+#include "sanitizer_report.h"
+
 namespace flexid::testing {
 
 inline std::string RandomUrl() {
@@ -39,11 +41,13 @@ inline std::string DescribeStatus(int status) {
 // blocks SIGTERM/SIGINT/SIGHUP in the thread that built it, and a child would inherit
 // that mask (the rig would then never see SIGTERM). Killed (SIGKILL) and reaped by the
 // destructor if still running. extra_env ("NAME=value") is added to the test's environment.
+// Once the child has exited, a sanitizer report in its stderr fails the test
+// (sanitizer_report.h).
 class ChildProcess {
  public:
   ChildProcess(const std::vector<std::string>& args, const std::string& stdout_path,
                const std::string& stderr_path, const std::vector<std::string>& extra_env = {})
-      : args_(args) {
+      : args_(args), stderr_path_(stderr_path) {
     posix_spawn_file_actions_t actions;
     posix_spawn_file_actions_init(&actions);
     posix_spawn_file_actions_addopen(&actions, STDIN_FILENO, "/dev/null", O_RDONLY, 0);
@@ -82,6 +86,7 @@ class ChildProcess {
       kill(pid_, SIGKILL);
       int status = 0;
       waitpid(pid_, &status, 0);
+      ExpectNoSanitizerReportInFile(args_[0], stderr_path_);  // if it died of one before
     }
   }
   ChildProcess(const ChildProcess&) = delete;
@@ -102,6 +107,7 @@ class ChildProcess {
       const pid_t done = waitpid(pid_, &status, WNOHANG);
       if (done == pid_) {
         status_ = status;
+        ExpectNoSanitizerReportInFile(args_[0], stderr_path_);
         break;
       }
       if (done < 0 || std::chrono::steady_clock::now() >= end) break;
@@ -112,6 +118,7 @@ class ChildProcess {
 
  private:
   std::vector<std::string> args_;
+  std::string stderr_path_;
   pid_t pid_ = -1;
   std::optional<int> status_;
 };

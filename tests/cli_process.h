@@ -13,6 +13,8 @@
 #include <sstream>
 #include <string>
 
+#include "sanitizer_report.h"
+
 namespace flexid::testing {
 
 struct ProcessResult {
@@ -21,7 +23,8 @@ struct ProcessResult {
   std::string err;
 };
 
-// Runs `command` with /bin/sh; stderr is captured through a file in `scratch`.
+// Runs `command` with /bin/sh; stderr is captured through a file in `scratch`. A sanitizer
+// report in it fails the test (sanitizer_report.h).
 inline ProcessResult RunCommand(const std::string& command, const std::filesystem::path& scratch) {
   const auto err_path = scratch / "stderr.txt";
   ProcessResult result;
@@ -37,6 +40,7 @@ inline ProcessResult RunCommand(const std::string& command, const std::filesyste
   std::stringstream text;
   text << err.rdbuf();
   result.err = text.str();
+  ExpectNoSanitizerReport(command, result.err);
   return result;
 }
 

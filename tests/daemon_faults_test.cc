@@ -26,7 +26,7 @@
 #include <flexid/rpc_reply_t.hpp>
 #include <flexid/rpc_request_t.hpp>
 #include <flexid/status_t.hpp>
-#include <flexid/trial_control_t.hpp>
+#include <flexid/trial_control2_t.hpp>
 #include <flexid/voltage_sample_t.hpp>
 #include <fstream>
 #include <functional>
@@ -43,7 +43,10 @@
 #include <thread>
 #include <vector>
 
+#include "child_process.h"
 #include "daemon/daemon.h"
+#include "fault_harness.h"
+#include "lcmtypes/message_auth.h"
 #include "scratch_dir.h"
 #include "storage/database.h"
 
@@ -52,47 +55,19 @@ namespace {
 
 using namespace std::chrono_literals;
 using Clock = std::chrono::steady_clock;
-using Bytes = std::vector<uint8_t>;
+using testing::Bus;
+using testing::Bytes;
+using testing::ChildProcess;
+using testing::Deflection;
+using testing::DescribeStatus;
+using testing::Encode;
+using testing::RandomUrl;
+using testing::ReadFile;
+using testing::RecordFault;
+using testing::Voltage;
 
 const std::string kFlexidd = FLEXIDD_BINARY;
 const std::string kRig = FLEXID_RIG_BINARY;
-
-std::string RandomUrl() {
-  std::random_device device;
-  std::uniform_int_distribution<int> port(20000, 60000);
-  return "udpm://239.255.76.67:" + std::to_string(port(device)) + "?ttl=0";
-}
-
-std::string ReadFile(const std::string& path) {
-  std::ifstream in(path);
-  std::stringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
-
-template <typename Message>
-Bytes Encode(const Message& message) {
-  Bytes bytes(static_cast<size_t>(message.getEncodedSize()));
-  EXPECT_EQ(message.encode(bytes.data(), 0, static_cast<int>(bytes.size())),
-            static_cast<int>(bytes.size()));
-  return bytes;
-}
-
-flexid::voltage_sample_t Voltage(int64_t utime, double volts, const std::string& id = "S1") {
-  flexid::voltage_sample_t m;
-  m.utime = utime;
-  m.actuator_id = id;
-  m.voltage_V = volts;
-  return m;
-}
-
-flexid::deflection_sample_t Deflection(int64_t utime, double mm, const std::string& id = "S1") {
-  flexid::deflection_sample_t m;
-  m.utime = utime;
-  m.actuator_id = id;
-  m.deflection_mm = mm;
-  return m;
-}
 
 // An encoded voltage_sample_t whose actuator_id length prefix (bytes 16..19, big-endian,
 // counting the terminating NUL) is replaced by `length`.
@@ -105,166 +80,6 @@ Bytes VoltageWithStringLength(int32_t length) {
   bytes[19] = static_cast<uint8_t>(u);
   return bytes;
 }
-
-// "exit N" or "signal N", for messages.
-std::string DescribeStatus(int status) {
-  if (WIFEXITED(status)) return "exit " + std::to_string(WEXITSTATUS(status));
-  if (WIFSIGNALED(status)) return "signal " + std::to_string(WTERMSIG(status));
-  return "status " + std::to_string(status);
-}
-
-// A child process started with posix_spawn (so that the test has its pid to signal),
-// stdout and stderr to files. The child starts with no blocked signals and default
-// dispositions for SIGTERM, SIGINT, SIGHUP and SIGPIPE: an in-process daemon::Daemon
-// blocks SIGTERM/SIGINT/SIGHUP in the thread that built it, and a child would inherit
-// that mask (the rig would then never see SIGTERM). Killed (SIGKILL) and reaped by the
-// destructor if still running.
-class ChildProcess {
- public:
-  ChildProcess(const std::vector<std::string>& args, const std::string& stdout_path,
-               const std::string& stderr_path)
-      : args_(args) {
-    posix_spawn_file_actions_t actions;
-    posix_spawn_file_actions_init(&actions);
-    posix_spawn_file_actions_addopen(&actions, STDIN_FILENO, "/dev/null", O_RDONLY, 0);
-    posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, stdout_path.c_str(),
-                                     O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    posix_spawn_file_actions_addopen(&actions, STDERR_FILENO, stderr_path.c_str(),
-                                     O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    posix_spawnattr_t attributes;
-    posix_spawnattr_init(&attributes);
-    sigset_t none, defaults;
-    sigemptyset(&none);
-    sigemptyset(&defaults);
-    for (int signo : {SIGTERM, SIGINT, SIGHUP, SIGPIPE}) sigaddset(&defaults, signo);
-    posix_spawnattr_setsigmask(&attributes, &none);
-    posix_spawnattr_setsigdefault(&attributes, &defaults);
-    posix_spawnattr_setflags(&attributes,
-                             static_cast<short>(POSIX_SPAWN_SETSIGMASK | POSIX_SPAWN_SETSIGDEF));
-    std::vector<char*> argv;
-    for (std::string& arg : args_) argv.push_back(arg.data());
-    argv.push_back(nullptr);
-    const int error = posix_spawn(&pid_, argv[0], &actions, &attributes, argv.data(), environ);
-    posix_spawnattr_destroy(&attributes);
-    posix_spawn_file_actions_destroy(&actions);
-    if (error != 0) {
-      pid_ = -1;
-      ADD_FAILURE() << "cannot start " << args_[0] << ": " << std::strerror(error);
-    }
-  }
-  ~ChildProcess() {
-    if (pid_ > 0 && !status_) {
-      kill(pid_, SIGKILL);
-      int status = 0;
-      waitpid(pid_, &status, 0);
-    }
-  }
-  ChildProcess(const ChildProcess&) = delete;
-  ChildProcess& operator=(const ChildProcess&) = delete;
-
-  bool started() const { return pid_ > 0; }
-  // Still running (not yet reaped by Wait).
-  bool Running() {
-    if (pid_ <= 0 || status_) return false;
-    return !Wait(0ms).has_value();
-  }
-  bool Signal(int signo) { return pid_ > 0 && !status_ && kill(pid_, signo) == 0; }
-  // The wait status once the child has exited, or nothing after `timeout`.
-  std::optional<int> Wait(std::chrono::milliseconds timeout) {
-    const auto end = Clock::now() + timeout;
-    while (pid_ > 0 && !status_) {
-      int status = 0;
-      const pid_t done = waitpid(pid_, &status, WNOHANG);
-      if (done == pid_) {
-        status_ = status;
-        break;
-      }
-      if (done < 0 || Clock::now() >= end) break;
-      std::this_thread::sleep_for(5ms);
-    }
-    return status_;
-  }
-
- private:
-  std::vector<std::string> args_;
-  pid_t pid_ = -1;
-  std::optional<int> status_;
-};
-
-// The test's side of the bus: STATUS heartbeats, predictions of S1, RPC replies to
-// anyone; raw and encoded publishing.
-class Bus {
- public:
-  explicit Bus(const std::string& url, bool with_predictions) : lcm_(url) {
-    if (!lcm_.good()) return;
-    lcm_.subscribeFunction("FLEXID/STATUS", &Bus::OnStatus, this)->setQueueCapacity(1000);
-    lcm_.subscribeFunction("FLEXID/RPC/REPLY/.*", &Bus::OnReply, this)->setQueueCapacity(1000);
-    if (with_predictions)
-      lcm_.subscribeFunction("FLEXID/S1/PREDICTION", &Bus::OnPrediction, this)
-          ->setQueueCapacity(10000);
-  }
-  bool good() { return lcm_.good(); }
-
-  int PublishRaw(const std::string& channel, const Bytes& bytes) {
-    return lcm_.publish(channel, bytes.data(), static_cast<unsigned int>(bytes.size()));
-  }
-  template <typename Message>
-  int Publish(const std::string& channel, const Message& message) {
-    return lcm_.publish(channel, &message);
-  }
-
-  // Handles whatever has arrived, without waiting.
-  void HandleReady() {
-    while (lcm_.handleTimeout(0) > 0) {
-    }
-  }
-  // Handles messages until done() or the timeout; returns done().
-  bool PumpUntil(const std::function<bool()>& done, std::chrono::milliseconds timeout) {
-    const auto end = Clock::now() + timeout;
-    while (!done() && Clock::now() < end) lcm_.handleTimeout(10);
-    return done();
-  }
-  void Pump(std::chrono::milliseconds duration) {
-    const auto end = Clock::now() + duration;
-    PumpUntil([&] { return Clock::now() >= end; }, duration + 100ms);
-  }
-
-  // The highest samples_stored of the STATUS messages received so far (-1: none).
-  int64_t MaxStored() const {
-    int64_t best = -1;
-    for (const auto& s : statuses) best = std::max(best, s.samples_stored);
-    return best;
-  }
-  // Replies with that request id.
-  std::vector<std::pair<std::string, flexid::rpc_reply_t>> RepliesTo(const std::string& id) const {
-    std::vector<std::pair<std::string, flexid::rpc_reply_t>> out;
-    for (const auto& r : replies)
-      if (r.second.request_id == id) out.push_back(r);
-    return out;
-  }
-
-  std::vector<flexid::status_t> statuses;
-  std::vector<flexid::prediction_t> predictions;
-  std::vector<std::pair<std::string, flexid::rpc_reply_t>> replies;  // channel, reply
-
- private:
-  static void OnStatus(const lcm::ReceiveBuffer* rbuf, const std::string&, Bus* self) {
-    flexid::status_t s;
-    if (s.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) > 0) self->statuses.push_back(s);
-  }
-  static void OnPrediction(const lcm::ReceiveBuffer* rbuf, const std::string&, Bus* self) {
-    flexid::prediction_t p;
-    if (p.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) > 0)
-      self->predictions.push_back(p);
-  }
-  static void OnReply(const lcm::ReceiveBuffer* rbuf, const std::string& channel, Bus* self) {
-    flexid::rpc_reply_t r;
-    if (r.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) > 0)
-      self->replies.emplace_back(channel, r);
-  }
-
-  lcm::LCM lcm_;
-};
 
 // ---------------------------------------------------------------------------------------
 // 1. kill -9 in the middle of a trial
@@ -283,6 +98,8 @@ TEST(DaemonKill, AcknowledgedSamplesSurviveKill9AndTrialBecomesInterrupted) {
   // Not whole multiples of the 100 ms commit interval apart, so that the kills land at
   // different moments of the commit cycle.
   const std::chrono::milliseconds kill_delays[] = {1550ms, 2680ms, 3730ms};
+  // The rig signs its trial control with the key flexidd creates next to its database.
+  const std::string key_file = scratch.File("flexidd.key");
 
   for (int round = 0; round < 3; ++round) {
     const std::chrono::milliseconds delay = kill_delays[round];
@@ -304,8 +121,8 @@ TEST(DaemonKill, AcknowledgedSamplesSurviveKill9AndTrialBecomesInterrupted) {
     const std::string rig_out = scratch.File("rig" + tag + ".out");
     ChildProcess rig(
         {kRig, "--lcm", url, "--actuator", "S1", "--protocol", "hold:level=5,duration=10000",
-         "--rate-hz", "100", "--speed", "50", "--noise-mm", "0.02", "--trial-control",
-         "--start-utime", std::to_string(start_utime)},
+         "--rate-hz", "100", "--speed", "50", "--noise-mm", "0.02", "--trial-control", "--key-file",
+         key_file, "--start-utime", std::to_string(start_utime)},
         rig_out, scratch.File("rig" + tag + ".err"));
     ASSERT_TRUE(rig.started());
     const auto kill_at = Clock::now() + delay;
@@ -444,6 +261,7 @@ class InProcessDaemon : public ::testing::Test {
     config.max_message_bytes = max_message_bytes;
     daemon::Validate(config);
     daemon_ = std::make_unique<daemon::Daemon>(config);
+    key_ = auth::ReadKeyFile(daemon::KeyFilePath(config));  // created by the daemon
   }
 
   // Runs the daemon's loop and the test's bus until done() or the timeout.
@@ -482,6 +300,12 @@ class InProcessDaemon : public ::testing::Test {
     r.client_id = client_id;
     r.method = method;
     r.args_json = args_json;
+    // Signed where flexidd asks for it, so that what is tested here is the method itself
+    // (tests/auth_test.cc tests the signatures).
+    if (auth::ChangesData(method)) {
+      r.utime = auth::WallClockUtime();
+      auth::Sign(key_, &r);
+    }
     return r;
   }
   // Sends a request and waits for its one reply on the client's channel.
@@ -517,6 +341,7 @@ class InProcessDaemon : public ::testing::Test {
   int64_t sent_ = 0;
   int64_t lost_ = 0;
   int requests_ = 0;
+  auth::Key key_;
 };
 
 // ---------------------------------------------------------------------------------------
@@ -574,11 +399,13 @@ TEST_F(InProcessDaemon, BadInputIsRejectedCountedAndHarmless) {
   malformed("FLEXID/S2/DEFLECTION", Encode(Deflection(B + 300'000, 0.7, "S1")));
   malformed(V, Encode(Voltage(B + 300'000, 7.0, "S1x")));
   malformed(D, Encode(Deflection(B + 300'000, 0.7, "S")));
-  flexid::trial_control_t control;
+  flexid::trial_control2_t control;  // correctly signed, but no such action
   control.utime = B + 300'000;
   control.actuator_id = "S1";
   control.action = 7;
   control.protocol = "bogus";
+  control.sent_utime = auth::WallClockUtime();
+  auth::Sign(key_, &control);
   malformed("FLEXID/TRIAL", Encode(control));
   malformed("FLEXID/RPC/REQUEST", Bytes(text.begin(), text.end()));
   // A valid "status" request of 2000 bytes: over the limit, so no reply.
@@ -692,6 +519,17 @@ TEST_F(InProcessDaemon, BadInputIsRejectedCountedAndHarmless) {
     EXPECT_EQ(samples[i].voltage_V, stored[i].voltage_V) << i;
     EXPECT_EQ(samples[i].deflection_mm, stored[i].deflection_mm) << i;
   }
+  // For bench/fault-table: every accepted sample is stored exactly as sent.
+  int64_t missing = 0;
+  for (const storage::Sample& want_sample : stored)
+    missing += std::none_of(samples.begin(), samples.end(), [&](const storage::Sample& s) {
+      return s.utime == want_sample.utime && s.voltage_V == want_sample.voltage_V &&
+             s.deflection_mm == want_sample.deflection_mm;
+    });
+  RecordFault({"bad input (malformed, oversized, NaN/Inf, out of order, duplicate, misaddressed)",
+               got.rejected_malformed + got.rejected_nonfinite + got.rejected_out_of_order,
+               static_cast<int64_t>(stored.size()), missing, db.IntegrityCheck(), "never stopped",
+               "each rejected and counted by kind; the daemon went on predicting"});
 }
 
 // ---------------------------------------------------------------------------------------
@@ -736,8 +574,8 @@ TEST_F(InProcessDaemon, RpcRejectsBadRequestsAndServesAnEmptyDatabase) {
     Send("FLEXID/RPC/REQUEST", request);
     ASSERT_TRUE(Drive([&] { return !bus_->RepliesTo(id).empty(); }, 3s))
         << "no reply to a request id of " << id.size() << " characters";
-    const auto& reply = bus_->RepliesTo(id).front().second;
-    EXPECT_EQ(reply.status, flexid::rpc_reply_t::kBadRequest);
+    const flexid::rpc_reply_t reply = bus_->RepliesTo(id).front().second;  // a copy: RepliesTo
+    EXPECT_EQ(reply.status, flexid::rpc_reply_t::kBadRequest);             // returns by value
     EXPECT_NE(reply.error.find("request_id"), std::string::npos) << reply.error;
   }
   // Undecodable requests: no reply, counted.
@@ -844,6 +682,8 @@ TEST_F(CraftedStringLength, NonPositiveLengthIsCountedAsMalformed) {
   EXPECT_EQ((*status)["messages_received"], 4);  // three samples and this request
   EXPECT_EQ((*status)["rejected_malformed"], 3) << "a malformed message went uncounted: " << Log();
   EXPECT_TRUE(daemon_->Running());
+  RecordFault({"bad input: LCM string length <= 0", 3, 0, 0, "n/a", "never stopped",
+               "counted as malformed"});
 }
 
 TEST_F(CraftedStringLength, MinInt32LengthDoesNotCrashTheDaemon) {
@@ -858,6 +698,8 @@ TEST_F(CraftedStringLength, MinInt32LengthDoesNotCrashTheDaemon) {
                                    << Log();
   ASSERT_TRUE(status.has_value()) << "flexidd did not answer: " << Log();
   EXPECT_EQ((*status)["rejected_malformed"], 1);
+  RecordFault({"bad input: LCM string length INT32_MIN", 1, 0, 0, "n/a", "never stopped",
+               "counted as malformed (it used to crash lcm-gen's decoder)"});
 }
 
 }  // namespace

@@ -17,6 +17,7 @@
 #include <thread>
 
 #include "cli_process.h"
+#include "lcmtypes/message_auth.h"
 #include "scratch_dir.h"
 #include "storage/database.h"
 
@@ -56,6 +57,10 @@ class Listener {
     request.client_id = "daemon_test";
     request.method = method;
     request.args_json = args.dump();
+    if (key && auth::ChangesData(method)) {  // signed with the daemon's key
+      request.utime = auth::WallClockUtime();
+      auth::Sign(*key, &request);
+    }
     reply_.reset();
     lcm_.publish("FLEXID/RPC/REQUEST", &request);
     const auto end = std::chrono::steady_clock::now() + timeout;
@@ -66,6 +71,7 @@ class Listener {
   }
   std::vector<flexid::prediction_t> predictions;
   std::vector<flexid::alert_t> alerts;
+  std::optional<auth::Key> key;  // signs the requests that change data
 
  private:
   static void OnPrediction(const lcm::ReceiveBuffer* rbuf, const std::string&, Listener* self) {
@@ -99,6 +105,8 @@ class DaemonEndToEnd : public ::testing::Test {
     config.daemon_id = "test";
     daemon::Validate(config);
     daemon_ = std::make_unique<daemon::Daemon>(config);
+    key_file_ = daemon::KeyFilePath(config);
+    listener_->key = auth::ReadKeyFile(key_file_);
     running_ = true;
     loop_ = std::thread([this] {
       while (running_) daemon_->RunOnce(20);
@@ -111,15 +119,16 @@ class DaemonEndToEnd : public ::testing::Test {
   // Runs the rig binary to completion (message time advances 200 x faster than real time);
   // each run starts in message time after the previous one ended.
   void Rig(const std::string& protocol, double duration_s, const std::string& extra = "") {
-    const auto r =
-        testing::RunCommand(kRig + " --lcm '" + url_ + "' --actuator S1 --protocol " + protocol +
-                                " --speed 200 --noise-mm 0.02 --trial-control --start-utime " +
-                                std::to_string(next_utime_) + " " + extra,
-                            scratch_.path());
+    const auto r = testing::RunCommand(
+        kRig + " --lcm '" + url_ + "' --actuator S1 --protocol " + protocol +
+            " --speed 200 --noise-mm 0.02 --trial-control --key-file '" + key_file_ +
+            "' --start-utime " + std::to_string(next_utime_) + " " + extra,
+        scratch_.path());
     ASSERT_EQ(r.exit_code, 0) << r.err;
     next_utime_ += static_cast<int64_t>((duration_s + 60.0) * 1e6);
   }
   int64_t next_utime_ = 1'000'000'000'000;
+  std::string key_file_;
   testing::ScratchDir scratch_;
   std::string url_;
   std::unique_ptr<Listener> listener_;

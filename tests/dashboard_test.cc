@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "cli_process.h"
+#include "lcm_subscribe.h"
 #include "clients/dashboard/assets.h"
 #include "clients/dashboard/bus.h"
 #include "clients/dashboard/listen_address.h"
@@ -324,7 +325,7 @@ TEST(Listen, TheBinaryExitsWithUsageError) {
 class FakeDaemon {
  public:
   explicit FakeDaemon(lcm::LCM& lcm) : lcm_(lcm) {
-    lcm_.subscribe("FLEXID/RPC/REQUEST", &FakeDaemon::OnRequest, this);
+    testing::SubscribeMember<&FakeDaemon::OnRequest>(lcm_, "FLEXID/RPC/REQUEST", this);
   }
   std::atomic<int> model_requests{0};
   std::atomic<int> alert_requests{0};

@@ -1,7 +1,8 @@
 // flexidd running as a real program on its own bus (udpm, ttl=0, random port) and its own
 // database file, with the flexid and flexid-rig programs to talk to it: the setting of
 // the command line's end-to-end tests. Needs FLEXIDD_BINARY, FLEXID_BINARY and
-// FLEXID_RIG_BINARY defined by the build.
+// FLEXID_RIG_BINARY defined by the build. flexidd creates its key next to the database
+// (scratch/flexidd.key); Flexid() and RecordTrial() pass it with --key-file.
 #pragma once
 
 #include <gtest/gtest.h>
@@ -22,7 +23,10 @@ class LiveDaemon {
  public:
   // Starts flexidd on scratch/flexid.db and waits (up to 20 s) until it answers `status`.
   explicit LiveDaemon(const std::filesystem::path& scratch)
-      : scratch_(scratch), url_(RandomUrl()), db_(scratch / "flexid.db") {
+      : scratch_(scratch),
+        url_(RandomUrl()),
+        db_(scratch / "flexid.db"),
+        key_file_(scratch / "flexidd.key") {
     daemon_ = std::make_unique<ChildProcess>(
         std::vector<std::string>{FLEXIDD_BINARY, "--db", db_.string(), "--lcm", url_},
         (scratch / "flexidd.out").string(), (scratch / "flexidd.err").string());
@@ -45,10 +49,13 @@ class LiveDaemon {
   bool ready() const { return ready_; }
   const std::string& url() const { return url_; }
   const std::filesystem::path& db() const { return db_; }
+  const std::filesystem::path& key_file() const { return key_file_; }
 
-  // `flexid --lcm URL ARGS` (ARGS as a shell would split them).
+  // `flexid --lcm URL --key-file KEY ARGS` (ARGS as a shell would split them).
   ProcessResult Flexid(const std::string& args) const {
-    return RunCommand(std::string(FLEXID_BINARY) + " --lcm '" + url_ + "' " + args, scratch_);
+    return RunCommand(std::string(FLEXID_BINARY) + " --lcm '" + url_ + "' --key-file '" +
+                          key_file_.string() + "' " + args,
+                      scratch_);
   }
 
   // One trial of PROTOCOL from the rig at 100 times real time, message time running on
@@ -57,8 +64,9 @@ class LiveDaemon {
                       const std::string& actuator = "S1") {
     const ProcessResult rig =
         RunCommand(std::string(FLEXID_RIG_BINARY) + " --lcm '" + url_ + "' --actuator " + actuator +
-                       " --speed 100 --noise-mm 0.02 --trial-control --start-utime " +
-                       std::to_string(next_utime_) + " --protocol " + protocol + " " + extra,
+                       " --speed 100 --noise-mm 0.02 --trial-control --key-file '" +
+                       key_file_.string() + "' --start-utime " + std::to_string(next_utime_) +
+                       " --protocol " + protocol + " " + extra,
                    scratch_);
     EXPECT_EQ(rig.exit_code, 0) << rig.err;
     next_utime_ += 2'000'000'000;  // 2000 s of message time per trial, rest included
@@ -90,6 +98,7 @@ class LiveDaemon {
   std::filesystem::path scratch_;
   std::string url_;
   std::filesystem::path db_;
+  std::filesystem::path key_file_;
   std::unique_ptr<ChildProcess> daemon_;
   bool ready_ = false;
   int64_t next_utime_ = 1'700'000'000'000'000;

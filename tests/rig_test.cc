@@ -11,7 +11,7 @@
 #include <cmath>
 #include <cstdint>
 #include <flexid/deflection_sample_t.hpp>
-#include <flexid/trial_control_t.hpp>
+#include <flexid/trial_control2_t.hpp>
 #include <flexid/voltage_sample_t.hpp>
 #include <fstream>
 #include <lcm/lcm-cpp.hpp>
@@ -26,9 +26,11 @@
 #include <vector>
 
 #include "cli_process.h"
+#include "lcm_subscribe.h"
 #include "clients/rig/effects.h"
 #include "clients/rig/protocol.h"
 #include "clients/rig/runner.h"
+#include "lcmtypes/message_auth.h"
 #include "model/errors.h"
 #include "model/presets.h"
 #include "model/recording.h"
@@ -1405,9 +1407,13 @@ struct BusCounter {
     Touch();
   }
   void OnTrial(const lcm::ReceiveBuffer*, const std::string&,
-               const flexid::trial_control_t* message) {
+               const flexid::trial_control2_t* message) {
     trial_actions.push_back(message->action);
     ids_ok = ids_ok && message->actuator_id == "E2E";
+    // Signed with the key given, on the wall clock (not the message time of --start-utime).
+    signed_ok = signed_ok && key != nullptr &&
+                auth::SignatureMatches(*key, auth::CanonicalForm(*message), message->auth) &&
+                std::abs(message->sent_utime - auth::WallClockUtime()) < 60'000'000;
     Touch();
   }
   void Touch() { last_message = std::chrono::steady_clock::now(); }
@@ -1415,6 +1421,8 @@ struct BusCounter {
   std::vector<int64_t> voltage_utimes, deflection_utimes;
   std::vector<int8_t> trial_actions;
   bool ids_ok = true;
+  const auth::Key* key = nullptr;
+  bool signed_ok = true;
   std::chrono::steady_clock::time_point last_message = std::chrono::steady_clock::now();
 };
 
@@ -1429,7 +1437,13 @@ class RigBinary : public ::testing::Test {
   testing::ProcessResult Run(const std::string& args) {
     return testing::RunCommand(kRig + " " + args, scratch_.path());
   }
+  // A key file for --trial-control (as flexidd would create it): " --key-file 'PATH' ".
+  std::string KeyFlag() {
+    key_ = auth::LoadOrCreateKeyFile(scratch_.File("flexidd.key"));
+    return " --key-file '" + scratch_.File("flexidd.key") + "' ";
+  }
   testing::ScratchDir scratch_;
+  auth::Key key_;
 };
 
 TEST_F(RigBinary, PublishesWhatItsSummarySaysOverLcm) {
@@ -1437,12 +1451,14 @@ TEST_F(RigBinary, PublishesWhatItsSummarySaysOverLcm) {
   lcm::LCM lcm(url);
   if (!lcm.good()) GTEST_SKIP() << "cannot open LCM on " << url << " (no multicast route?)";
   BusCounter counter;
+  const std::string key_flag = KeyFlag();
+  counter.key = &key_;
   // LCM queues at most 30 messages per subscription by default and drops the rest; the
   // rig at --speed 0 publishes faster than that is drained.
   for (lcm::Subscription* subscription :
-       {lcm.subscribe("FLEXID/E2E/VOLTAGE", &BusCounter::OnVoltage, &counter),
-        lcm.subscribe("FLEXID/E2E/DEFLECTION", &BusCounter::OnDeflection, &counter),
-        lcm.subscribe("FLEXID/TRIAL", &BusCounter::OnTrial, &counter)})
+       {testing::SubscribeMember<&BusCounter::OnVoltage>(lcm, "FLEXID/E2E/VOLTAGE", &counter),
+        testing::SubscribeMember<&BusCounter::OnDeflection>(lcm, "FLEXID/E2E/DEFLECTION", &counter),
+        testing::SubscribeMember<&BusCounter::OnTrial>(lcm, "FLEXID/TRIAL", &counter)})
     subscription->setQueueCapacity(100000);
   lcm.getFileno();  // the receive socket exists before the rig publishes
 
@@ -1451,7 +1467,8 @@ TEST_F(RigBinary, PublishesWhatItsSummarySaysOverLcm) {
   std::thread rig([&] {
     result = Run("--lcm '" + url +
                  "' --actuator E2E --protocol step:level=3,duration=5,delay=1 --speed 0 "
-                 "--start-utime 1000000 --trial-control --effect back_relaxation --noise-mm 0.01");
+                 "--start-utime 1000000 --trial-control --effect back_relaxation --noise-mm 0.01" +
+                 key_flag);
     done = true;
   });
   while (!done ||
@@ -1475,8 +1492,21 @@ TEST_F(RigBinary, PublishesWhatItsSummarySaysOverLcm) {
   ASSERT_EQ(counter.deflection_utimes.size(), 60u);
   for (size_t k = 0; k < 60; ++k)
     EXPECT_EQ(counter.deflection_utimes[k], 1'000'000 + static_cast<int64_t>(k) * 100'000);
-  EXPECT_EQ(counter.trial_actions,
-            (std::vector<int8_t>{flexid::trial_control_t::kStart, flexid::trial_control_t::kStop}));
+  EXPECT_EQ(counter.trial_actions, (std::vector<int8_t>{flexid::trial_control2_t::kStart,
+                                                        flexid::trial_control2_t::kStop}));
+  EXPECT_TRUE(counter.signed_ok) << "trial control not signed with the key given";
+}
+
+TEST_F(RigBinary, TrialControlWithoutAKeyFailsBeforeSendingAnything) {
+  const std::string missing = scratch_.File("no-such.key");
+  const auto result =
+      Run("--lcm 'udpm://239.255.76.67:7667?ttl=0' --actuator K1 --protocol "
+          "hold:level=1,duration=1 --speed 0 --trial-control --key-file '" +
+          missing + "'");
+  EXPECT_EQ(result.exit_code, 1);
+  EXPECT_EQ(result.out, "");
+  EXPECT_NE(result.err.find("cannot read key file " + missing), std::string::npos) << result.err;
+  EXPECT_EQ(std::count(result.err.begin(), result.err.end(), '\n'), 1) << result.err;
 }
 
 TEST_F(RigBinary, BadUsageIsOneLineAndExitTwo) {
@@ -1691,9 +1721,9 @@ struct ChannelCounter {
     Touch();
   }
   void OnTrial(const lcm::ReceiveBuffer*, const std::string&,
-               const flexid::trial_control_t* message) {
+               const flexid::trial_control2_t* message) {
     trials.push_back(message->actuator_id +
-                     (message->action == flexid::trial_control_t::kStart ? ":start" : ":stop"));
+                     (message->action == flexid::trial_control2_t::kStart ? ":start" : ":stop"));
     Touch();
   }
   void Touch() { last_message = std::chrono::steady_clock::now(); }
@@ -1710,10 +1740,11 @@ TEST_F(RigBinary, SeveralActuatorsPublishOnTheirOwnChannels) {
   lcm::LCM lcm(url);
   if (!lcm.good()) GTEST_SKIP() << "cannot open LCM on " << url << " (no multicast route?)";
   ChannelCounter counter;
+  const std::string key_flag = KeyFlag();
   for (lcm::Subscription* subscription :
-       {lcm.subscribe("FLEXID/.*/VOLTAGE", &ChannelCounter::OnVoltage, &counter),
-        lcm.subscribe("FLEXID/.*/DEFLECTION", &ChannelCounter::OnDeflection, &counter),
-        lcm.subscribe("FLEXID/TRIAL", &ChannelCounter::OnTrial, &counter)})
+       {testing::SubscribeMember<&ChannelCounter::OnVoltage>(lcm, "FLEXID/.*/VOLTAGE", &counter),
+        testing::SubscribeMember<&ChannelCounter::OnDeflection>(lcm, "FLEXID/.*/DEFLECTION", &counter),
+        testing::SubscribeMember<&ChannelCounter::OnTrial>(lcm, "FLEXID/TRIAL", &counter)})
     subscription->setQueueCapacity(100000);
   lcm.getFileno();
 
@@ -1723,7 +1754,8 @@ TEST_F(RigBinary, SeveralActuatorsPublishOnTheirOwnChannels) {
     result = Run("--lcm '" + url +
                  "' --actuator M1,M2 --protocol sweep:level=3,frequencies=0.5,cycles=2 "
                  "--speed 0 --start-utime 2000000 --trial-control --noise-mm 0.01 "
-                 "--effect M2/dead_zone");
+                 "--effect M2/dead_zone" +
+                 key_flag);
     done = true;
   });
   while (!done ||

@@ -10,6 +10,7 @@
 #include <flexid/rpc_reply_t.hpp>
 #include <flexid/rpc_request_t.hpp>
 #include <flexid/status_t.hpp>
+#include <flexid/trial_control2_t.hpp>
 #include <flexid/trial_control_t.hpp>
 #include <flexid/voltage_sample_t.hpp>
 #include <random>
@@ -62,6 +63,12 @@ TEST(WireCheck, LayoutsMatchTheGeneratedEncoders) {
   control.actuator_id = "S1";
   control.protocol = "square:level=5";
   ExpectLayoutMatches(control, kTrialControl);
+  flexid::trial_control2_t signed_control;
+  signed_control.actuator_id = "S1";
+  signed_control.protocol = "square:level=5";
+  signed_control.nonce = "0123456789abcdef";
+  signed_control.auth = std::string(64, 'a');
+  ExpectLayoutMatches(signed_control, kTrialControl2);
   flexid::rpc_request_t request;
   request.request_id = "r1";
   request.method = "status";

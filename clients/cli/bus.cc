@@ -18,6 +18,25 @@ std::string& LcmUrl() {
   return url;
 }
 
+std::string& KeyFilePath() {
+  static std::string path;
+  return path;
+}
+
+const auth::Key& SigningKey() {
+  static std::optional<auth::Key> key;
+  if (!key) {
+    try {
+      key = auth::ReadKeyFile(auth::ClientKeyFilePath(KeyFilePath()));
+    } catch (const auth::KeyError& e) {
+      throw OperationError(std::string(e.what()) +
+                           " (a request that changes data needs flexidd's key: --key-file PATH "
+                           "or FLEXID_KEY_FILE)");
+    }
+  }
+  return *key;
+}
+
 namespace {
 
 struct ReplyCatcher {
@@ -51,6 +70,7 @@ std::string WithReceiveBuffer(const std::string& url) {
 
 RpcResult CallDaemon(const std::string& method, const nlohmann::json& args,
                      std::chrono::milliseconds timeout) {
+  const auth::Key* key = auth::ChangesData(method) ? &SigningKey() : nullptr;
   lcm::LCM lcm(WithReceiveBuffer(LcmUrl()));
   if (!lcm.good()) throw OperationError("cannot join the LCM bus at " + LcmUrl());
   const std::string client_id = "cli-" + std::to_string(getpid());
@@ -64,7 +84,8 @@ RpcResult CallDaemon(const std::string& method, const nlohmann::json& args,
   request.client_id = client_id;
   request.method = method;
   request.args_json = args.dump();
-  request.nonce = RandomToken();
+  request.nonce = auth::RandomNonce();
+  if (key) auth::Sign(*key, &request);
   lcm.publish("FLEXID/RPC/REQUEST", &request);
   const auto end = std::chrono::steady_clock::now() + timeout;
   while (!catcher.reply && std::chrono::steady_clock::now() < end) lcm.handleTimeout(50);

@@ -8,10 +8,18 @@
 #include <nlohmann/json.hpp>
 #include <string>
 
+#include "lcmtypes/message_auth.h"
+
 namespace flexid::cli {
 
 // Default as in DESIGN.md; set by main() from --lcm.
 std::string& LcmUrl();
+
+// The --key-file option (empty: $FLEXID_KEY_FILE, else var/flexidd.key); set by main().
+std::string& KeyFilePath();
+// The key for requests that change data (lcmtypes/message_auth.h), read once from the file
+// KeyFilePath() names. Throws OperationError "cannot read key file PATH: ..." (exit 1).
+const auth::Key& SigningKey();
 
 struct RpcResult {
   int8_t status = 0;  // rpc_reply_t::kOk, ...
@@ -20,8 +28,9 @@ struct RpcResult {
   std::string daemon_id;
 };
 
-// Sends one request and waits for its reply. Throws OperationError when no daemon
-// answers within the timeout or the bus cannot be joined.
+// Sends one request and waits for its reply; a method that changes data
+// (auth::ChangesData) is signed with SigningKey(). Throws OperationError when no daemon
+// answers within the timeout, the bus cannot be joined or the key cannot be read.
 RpcResult CallDaemon(const std::string& method, const nlohmann::json& args,
                      std::chrono::milliseconds timeout);
 

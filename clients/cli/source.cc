@@ -97,19 +97,7 @@ nlohmann::json QueryFile(const std::string& method, const nlohmann::json& args) 
     const int64_t offset = IntegerArg(args, "offset", 0);
     const std::vector<storage::Sample> page = db.SamplesPage(
         id, IntegerArg(args, "after_utime", INT64_MIN), offset, IntegerArg(args, "limit", 5000));
-    nlohmann::json utime = nlohmann::json::array(), volts = nlohmann::json::array(),
-                   mm = nlohmann::json::array();
-    for (const storage::Sample& s : page) {
-      utime.push_back(s.utime);
-      volts.push_back(s.voltage_V);
-      mm.push_back(s.deflection_mm);
-    }
-    return {{"trial", storage::TrialJson(*trial)},
-            {"offset", offset},
-            {"total", trial->samples},
-            {"utime", utime},
-            {"voltage_V", volts},
-            {"deflection_mm", mm}};
+    return storage::SamplesPageJson(*trial, offset, page);
   }
   if (method == "models") {
     nlohmann::json list = nlohmann::json::array();

@@ -9,6 +9,7 @@
 #include <cstring>
 #include <filesystem>
 #include <flexid/deflection_sample_t.hpp>
+#include <flexid/trial_control2_t.hpp>
 #include <flexid/trial_control_t.hpp>
 #include <flexid/voltage_sample_t.hpp>
 #include <fstream>
@@ -230,10 +231,39 @@ ImportPlan PlanFromCsv(const std::string& path, const PlanOptions& options) {
   return plan;
 }
 
+namespace {
+
+// Where the well-framed events of an lcm-logger file end: LCM's reader allocates whatever
+// length an event header claims (up to 2 GB) before it finds the file too short, so the
+// framing is checked first. An event is: magic 0xEDA1DA01, event number (8 bytes), time
+// (8), channel length (4), data length (4), all big-endian, then the channel and the
+// data. Returns the offset after the last event that fits in the file.
+int64_t WellFramedLogBytes(const std::string& path, uint64_t file_size) {
+  std::ifstream in(path, std::ios::binary);
+  uint64_t offset = 0;
+  std::array<unsigned char, 28> header{};
+  while (offset + header.size() <= file_size &&
+         in.read(reinterpret_cast<char*>(header.data()), header.size())) {
+    if (header[0] != 0xED || header[1] != 0xA1 || header[2] != 0xDA || header[3] != 0x01) break;
+    auto u32 = [&header](size_t at) {
+      return (uint64_t{header[at]} << 24) | (uint64_t{header[at + 1]} << 16) |
+             (uint64_t{header[at + 2]} << 8) | uint64_t{header[at + 3]};
+    };
+    const uint64_t end = offset + header.size() + u32(20) + u32(24);
+    if (end > file_size) break;
+    offset = end;
+    in.seekg(static_cast<std::streamoff>(offset));
+  }
+  return static_cast<int64_t>(offset);
+}
+
+}  // namespace
+
 ImportPlan PlanFromLcmLog(const std::string& path, const PlanOptions& options) {
   std::error_code size_error;
   const auto file_size = std::filesystem::file_size(path, size_error);
   if (size_error) throw InputError(path + ": cannot open: " + size_error.message());
+  const int64_t framed_bytes = WellFramedLogBytes(path, file_size);
   lcm::LogFile log(path, "r");
   if (!log.good()) throw InputError(path + ": cannot open: " + std::strerror(errno));
 
@@ -253,7 +283,8 @@ ImportPlan PlanFromLcmLog(const std::string& path, const PlanOptions& options) {
   int64_t last_voltage_utime = kNone, last_deflection_utime = kNone;
   int64_t end_of_last_event = 0;
   const lcm::LogEvent* event = nullptr;
-  while ((event = log.readNextEvent()) != nullptr) {
+  while (static_cast<int64_t>(ftello(log.getFilePtr())) < framed_bytes &&
+         (event = log.readNextEvent()) != nullptr) {
     ++counts.events;
     end_of_last_event = static_cast<int64_t>(ftello(log.getFilePtr()));
     if (event->channel == voltage_channel) {
@@ -287,8 +318,19 @@ ImportPlan PlanFromLcmLog(const std::string& path, const PlanOptions& options) {
         ++counts.deflection;
       }
     } else if (event->channel == trial_channel) {
+      // Logs hold the signed trial_control2_t, or trial_control_t from before flexid
+      // signed trial control; a log is a file, not a request, so either marks a trial.
       flexid::trial_control_t m;
-      if (!DecodeEvent(*event, wire::kTrialControl, &m)) {
+      flexid::trial_control2_t signed_control;
+      bool decoded = DecodeEvent(*event, wire::kTrialControl, &m);
+      if (!decoded && DecodeEvent(*event, wire::kTrialControl2, &signed_control)) {
+        decoded = true;
+        m.utime = signed_control.utime;
+        m.actuator_id = signed_control.actuator_id;
+        m.action = signed_control.action;
+        m.protocol = signed_control.protocol;
+      }
+      if (!decoded) {
         ++counts.malformed;
       } else if (m.actuator_id != options.actuator) {
         ++counts.other_channels;  // another actuator's trial

@@ -125,8 +125,8 @@ bool IsLcmLog(const std::string& path);
 ImportPlan PlanFromCsv(const std::string& path, const PlanOptions& options);
 
 // The voltage and deflection messages of one actuator in an lcm-logger log, validated
-// (wire::WellFormed, then decode) and split into trials at that actuator's trial_control_t
-// messages; without any, the whole log is one trial from its first to its last message.
+// (wire::WellFormed, then decode) and split into trials at that actuator's trial_control2_t
+// (or, in older logs, trial_control_t) messages; without any, the whole log is one trial from its first to its last message.
 // Deflections outside a trial are dropped, as flexidd drops them; trials without a
 // deflection are left out. Throws model::InputError when the file cannot be read or holds
 // no deflection of the actuator.

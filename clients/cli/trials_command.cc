@@ -10,7 +10,7 @@
 //   flexid trials stop --actuator ID [--json]                         (online only)
 //
 // Import stores the file straight into the --db file (trial_import.h), or, online, replays
-// it onto the bus as the virtual rig does: trial_control_t start on FLEXID/TRIAL,
+// it onto the bus as the virtual rig does: signed trial_control2_t start on FLEXID/TRIAL,
 // voltage_sample_t and deflection_sample_t on FLEXID/<ID>/VOLTAGE and /DEFLECTION, stop.
 // It publishes chunks of kReplayChunk deflections and lets at most kReplayWindow of them
 // wait for flexidd's commit (the trial's stored count, asked over RPC) before sending
@@ -25,7 +25,7 @@
 #include <cstdio>
 #include <cstring>
 #include <flexid/deflection_sample_t.hpp>
-#include <flexid/trial_control_t.hpp>
+#include <flexid/trial_control2_t.hpp>
 #include <flexid/voltage_sample_t.hpp>
 #include <iostream>
 #include <lcm/lcm-cpp.hpp>
@@ -284,11 +284,13 @@ void RunExport(const ExportArgs& args) {
 
 // --- import: on the bus ------------------------------------------------------------------
 
-// Publishes one actuator's messages, as flexid-rig's LcmSink does.
+// Publishes one actuator's messages, as flexid-rig's LcmSink does; trial control is signed
+// (lcmtypes/message_auth.h), so the key is read first, before anything is sent.
 class Publisher {
  public:
   explicit Publisher(const std::string& actuator)
-      : lcm_(LcmUrl()),
+      : key_(SigningKey()),
+        lcm_(LcmUrl()),
         actuator_(actuator),
         voltage_channel_("FLEXID/" + actuator + "/VOLTAGE"),
         deflection_channel_("FLEXID/" + actuator + "/DEFLECTION") {
@@ -312,16 +314,19 @@ class Publisher {
     if (status != 0) ++failed_;
   }
   void Control(int64_t utime, bool start, const std::string& protocol) {
-    flexid::trial_control_t message;
+    flexid::trial_control2_t message;
     message.utime = utime;
     message.actuator_id = actuator_;
-    message.action = start ? flexid::trial_control_t::kStart : flexid::trial_control_t::kStop;
+    message.action = start ? flexid::trial_control2_t::kStart : flexid::trial_control2_t::kStop;
     message.protocol = protocol;
+    message.sent_utime = auth::WallClockUtime();  // utime is the recording's message time
+    auth::Sign(key_, &message);
     if (lcm_.publish("FLEXID/TRIAL", &message) != 0) ++failed_;
   }
   int64_t failed() const { return failed_; }
 
  private:
+  const auth::Key& key_;
   lcm::LCM lcm_;
   std::string actuator_, voltage_channel_, deflection_channel_;
   int64_t failed_ = 0;

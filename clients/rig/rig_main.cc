@@ -2,7 +2,7 @@
 //
 //   flexid-rig --lcm URL --actuator ID[,ID...]... --protocol SPEC [--speed X] [--rate-hz 10]
 //              [--model MODEL.json] [--effect [ID/]NAME[:k=v,...]]... [--noise-mm SIGMA]
-//              [--seed N] [--start-utime U] [--trial-control]
+//              [--seed N] [--start-utime U] [--trial-control [--key-file PATH]]
 //   flexid-rig --out FILE.csv [--actuator ID[,ID...]]... --protocol SPEC [--rate-hz 10]
 //              [--model MODEL.json] [--effect [ID/]NAME[:k=v,...]]... [--noise-mm SIGMA]
 //              [--seed N]
@@ -11,7 +11,9 @@
 // T-S model or a model file, adds effects (effects.h) and sensor noise (rig.h), and
 // publishes flexid::voltage_sample_t on FLEXID/<ID>/VOLTAGE and flexid::deflection_sample_t
 // on FLEXID/<ID>/DEFLECTION in message time (runner.h); with --trial-control also
-// flexid::trial_control_t start and stop on FLEXID/TRIAL.
+// flexid::trial_control2_t start and stop on FLEXID/TRIAL, signed with flexidd's key
+// (lcmtypes/message_auth.h; --key-file, else $FLEXID_KEY_FILE, else var/flexidd.key). Its
+// sent_utime is the wall clock, whatever --speed and --start-utime do to message time.
 //
 // Several actuators: --actuator may be repeated or hold a comma-separated list. Every
 // actuator plays the same protocol on its own channels, with its own noise stream (seed +
@@ -25,7 +27,8 @@
 // has a first column `actuator` (actuator,t_s,voltage_V,deflection_mm), one row per
 // actuator and sample, in time order and the actuators in the order given within a time;
 // such a file is not a recording CSV (its time repeats): select one actuator's rows first.
-// The bus options (--lcm, --speed, --start-utime, --trial-control) are rejected with --out.
+// The bus options (--lcm, --speed, --start-utime, --trial-control, --key-file) are rejected
+// with --out.
 //
 // Prints one summary line on stdout. Errors are one line on stderr; exit 0 success, 1 the
 // run failed (bus, unstable model, a message not sent, the file not written, interrupted by
@@ -41,12 +44,13 @@
 #include <cstdio>
 #include <cstring>
 #include <flexid/deflection_sample_t.hpp>
-#include <flexid/trial_control_t.hpp>
+#include <flexid/trial_control2_t.hpp>
 #include <flexid/voltage_sample_t.hpp>
 #include <fstream>
 #include <iostream>
 #include <lcm/lcm-cpp.hpp>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -56,6 +60,7 @@
 #include "clients/rig/rig.h"
 #include "clients/rig/runner.h"
 #include "flexid/version.h"
+#include "lcmtypes/message_auth.h"
 #include "model/errors.h"
 #include "model/model_file.h"
 #include "model/presets.h"
@@ -86,6 +91,7 @@ struct RigArgs {
   int64_t start_utime = 0;
   bool start_utime_given = false;  // otherwise: wall clock now
   bool trial_control = false;
+  std::string key_file;  // signs trial control (empty: $FLEXID_KEY_FILE, else var/flexidd.key)
 };
 
 // Actuator ids name LCM channels: [A-Za-z0-9_-]{1,64}, as rpc_request_t's client_id.
@@ -101,8 +107,9 @@ bool IsValidActuatorId(const std::string& id) {
 
 class LcmSink : public BusSink {
  public:
-  LcmSink(lcm::LCM& lcm, std::string actuator_id)
+  LcmSink(lcm::LCM& lcm, std::string actuator_id, const flexid::auth::Key* key)
       : lcm_(&lcm),
+        key_(key),
         actuator_id_(std::move(actuator_id)),
         voltage_channel_("FLEXID/" + actuator_id_ + "/VOLTAGE"),
         deflection_channel_("FLEXID/" + actuator_id_ + "/DEFLECTION") {}
@@ -123,17 +130,21 @@ class LcmSink : public BusSink {
   }
   bool PublishTrialControl(int64_t utime, TrialAction action,
                            const std::string& protocol) override {
-    flexid::trial_control_t message;
+    if (key_ == nullptr) return false;
+    flexid::trial_control2_t message;
     message.utime = utime;
     message.actuator_id = actuator_id_;
-    message.action = action == TrialAction::kStart ? flexid::trial_control_t::kStart
-                                                   : flexid::trial_control_t::kStop;
+    message.action = action == TrialAction::kStart ? flexid::trial_control2_t::kStart
+                                                   : flexid::trial_control2_t::kStop;
     message.protocol = protocol;
+    message.sent_utime = flexid::auth::WallClockUtime();  // utime is message time
+    flexid::auth::Sign(*key_, &message);
     return lcm_->publish("FLEXID/TRIAL", &message) == 0;
   }
 
  private:
   lcm::LCM* lcm_;
+  const flexid::auth::Key* key_;  // null without --trial-control
   std::string actuator_id_;
   std::string voltage_channel_;
   std::string deflection_channel_;
@@ -261,12 +272,23 @@ int RunRigCommand(const RigArgs& args) {
   std::vector<Rig> rigs =
       MakeActuatorRigs(model, protocol, args.actuator_ids, args.effects, options);
 
+  // Trial control changes data, so it is signed: the key is read before anything is sent.
+  std::optional<flexid::auth::Key> key;
+  if (args.trial_control) {
+    try {
+      key = flexid::auth::ReadKeyFile(flexid::auth::ClientKeyFilePath(args.key_file));
+    } catch (const flexid::auth::KeyError& e) {
+      throw OperationError(std::string(e.what()) +
+                           " (--trial-control signs with flexidd's key: --key-file PATH or "
+                           "FLEXID_KEY_FILE)");
+    }
+  }
   lcm::LCM lcm(args.lcm_url);
   if (!lcm.good()) throw OperationError("cannot open the LCM bus [url: " + args.lcm_url + "]");
   std::vector<std::unique_ptr<LcmSink>> sinks;
   std::vector<ActuatorOnBus> actuators;
   for (size_t i = 0; i < rigs.size(); ++i) {
-    sinks.push_back(std::make_unique<LcmSink>(lcm, args.actuator_ids[i]));
+    sinks.push_back(std::make_unique<LcmSink>(lcm, args.actuator_ids[i], key ? &*key : nullptr));
     actuators.push_back({.rig = &rigs[i], .sink = sinks.back().get()});
   }
 
@@ -344,6 +366,9 @@ int main(int argc, char** argv) {
       "--start-utime", args.start_utime, "utime of the first sample, microseconds (default: now)");
   CLI::Option* trial_control = app.add_flag("--trial-control", args.trial_control,
                                             "Publish trial start and stop on FLEXID/TRIAL");
+  CLI::Option* key_file = app.add_option(
+      "--key-file", args.key_file,
+      "flexidd's key, to sign trial control (default $FLEXID_KEY_FILE, else var/flexidd.key)");
   app.footer(
       "Examples:\n  flexid-rig --lcm 'udpm://239.255.76.67:7667?ttl=0' --actuator S1 \\\n"
       "    --protocol square:level=5,period=220,cycles=5 --speed 100 --effect back_relaxation\n"
@@ -358,7 +383,7 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
     args.start_utime_given = start_utime->count() > 0;
-    for (const CLI::Option* option : {lcm, speed, start_utime, trial_control})
+    for (const CLI::Option* option : {lcm, speed, start_utime, trial_control, key_file})
       if (option->count() > 0) args.bus_options_given.push_back(option->get_name());
     return flexid::rig::RunRigCommand(args);
   } catch (const CLI::Success& e) {
