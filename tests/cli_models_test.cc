@@ -143,7 +143,8 @@ TEST_F(CliModels, IdentifyListShowDiffActivate) {
   // A version against its own file: no difference at all.
   r = Online("models diff --actuator S1 2 " + scratch_.File("v2.json") + " --json");
   ASSERT_EQ(r.exit_code, 0) << r.err;
-  for (const json& step : ParseJson(r)["step_responses"])
+  const json same = ParseJson(r);  // named: a range-for over a member of a temporary dangles
+  for (const json& step : same.at("step_responses"))
     EXPECT_EQ(step["max_abs_difference_mm"].get<double>(), 0.0) << step.dump();
 
   // activate: online switches at once; offline writes the file and says so.
