@@ -5,9 +5,10 @@
 // values, time order, channel agreement) live inside daemon/daemon.cc and are covered by
 // tests/daemon_faults_test.cc.
 //
-// Input: byte 0 picks the type (low 3 bits, kTypes order); with bit 7 set the first 8
-// message bytes are overwritten by that type's fingerprint, so that mutations reach the
-// fields instead of stopping at the fingerprint. The other bytes are the message.
+// Input: byte 0 picks the type (its low 7 bits modulo 9, in the order of the switch below);
+// with bit 7 set the first 8 message bytes are overwritten by that type's fingerprint, so
+// that mutations reach the fields instead of stopping at the fingerprint. The other bytes
+// are the message.
 //
 // Invariants (abort otherwise):
 //   - WellFormed accepts the message and the fingerprint is the type's => decode() reads
@@ -24,6 +25,7 @@
 #include <flexid/rpc_reply_t.hpp>
 #include <flexid/rpc_request_t.hpp>
 #include <flexid/status_t.hpp>
+#include <flexid/trial_control2_t.hpp>
 #include <flexid/trial_control_t.hpp>
 #include <flexid/voltage_sample_t.hpp>
 #include <vector>
@@ -91,7 +93,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   const bool patch = (data[0] & 0x80) != 0;
   const uint8_t* message = data + 1;
   const size_t n = size - 1;
-  switch (data[0] & 0x07) {
+  switch ((data[0] & 0x7F) % 9) {  // which message type; bit 7: patch in its fingerprint
     case 0:
       Check<flexid::voltage_sample_t>("voltage_sample_t", wire::kVoltageSample, message, n, patch);
       break;
@@ -116,6 +118,9 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
       break;
     case 7:
       Check<flexid::status_t>("status_t", wire::kStatus, message, n, patch);
+      break;
+    case 8:
+      Check<flexid::trial_control2_t>("trial_control2_t", wire::kTrialControl2, message, n, patch);
       break;
   }
   return 0;

@@ -12,6 +12,7 @@
 #include <flexid/rpc_reply_t.hpp>
 #include <flexid/rpc_request_t.hpp>
 #include <flexid/status_t.hpp>
+#include <flexid/trial_control2_t.hpp>
 #include <flexid/trial_control_t.hpp>
 #include <flexid/voltage_sample_t.hpp>
 #include <fstream>
@@ -117,6 +118,15 @@ int main(int argc, char** argv) {
   a.text = "trial 4: back-relaxation";
   WriteSeed(messages, 0x83, "alert_t", a);
   WriteSeed(messages, 0x84, "trial_control_t", Control(t0, flexid::trial_control_t::kStart));
+  flexid::trial_control2_t signed_control{};
+  signed_control.utime = t0;
+  signed_control.actuator_id = "S1";
+  signed_control.action = flexid::trial_control2_t::kStart;
+  signed_control.protocol = "step:level=2,duration=1";
+  signed_control.sent_utime = t0;
+  signed_control.nonce = "0123456789abcdef";
+  signed_control.auth = std::string(64, 'a');
+  WriteSeed(messages, 0x88, "trial_control2_t", signed_control);
   flexid::rpc_request_t q{};
   q.utime = t0;
   q.request_id = "r1";
