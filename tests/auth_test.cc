@@ -327,13 +327,7 @@ class AuthenticatedDaemon : public ::testing::Test {
   void TearDown() override { daemon_.reset(); }
 
   bool Drive(const std::function<bool()>& done, std::chrono::milliseconds timeout) {
-    const auto end = Clock::now() + timeout;
-    while (true) {
-      daemon_->RunOnce(2);
-      bus_->HandleReady();
-      if (done()) return true;
-      if (Clock::now() >= end) return false;
-    }
+    return testing::DriveInProcess(*daemon_, *bus_, done, timeout);
   }
   void Send(const std::string& channel, const Bytes& bytes) {
     const int64_t before = daemon_->counters().messages_received;

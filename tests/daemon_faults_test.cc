@@ -266,13 +266,7 @@ class InProcessDaemon : public ::testing::Test {
 
   // Runs the daemon's loop and the test's bus until done() or the timeout.
   bool Drive(const std::function<bool()>& done, std::chrono::milliseconds timeout) {
-    const auto end = Clock::now() + timeout;
-    while (true) {
-      daemon_->RunOnce(2);
-      bus_->HandleReady();
-      if (done()) return true;
-      if (Clock::now() >= end) return false;
-    }
+    return testing::DriveInProcess(*daemon_, *bus_, done, timeout);
   }
 
   // Publishes one raw message and runs the daemon until it has received it (one message

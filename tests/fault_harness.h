@@ -29,6 +29,8 @@
 #include <utility>
 #include <vector>
 
+#include "daemon/daemon.h"
+
 namespace flexid::testing {
 
 using Bytes = std::vector<uint8_t>;
@@ -300,6 +302,20 @@ inline void RecordFault(const FaultRecord& r) {
   if (std::FILE* f = std::fopen(path, "a")) {
     std::fwrite(text.data(), 1, text.size(), f);
     std::fclose(f);
+  }
+}
+
+// Runs an in-process flexidd's loop and the test's bus, both in this thread (so the
+// daemon's counters are never read while another thread updates them), until done() or
+// the timeout; returns done().
+inline bool DriveInProcess(daemon::Daemon& daemon, Bus& bus, const std::function<bool()>& done,
+                           std::chrono::milliseconds timeout) {
+  const auto end = std::chrono::steady_clock::now() + timeout;
+  while (true) {
+    daemon.RunOnce(2);
+    bus.HandleReady();
+    if (done()) return true;
+    if (std::chrono::steady_clock::now() >= end) return false;
   }
 }
 
