@@ -11,45 +11,6 @@
 namespace flexid::model {
 namespace {
 
-// A recording on a uniform grid: as given when it already is one, otherwise resampled to
-// its median sample period (voltage held, deflection interpolated linearly).
-struct UniformRecording {
-  double dt_s = 0.0;
-  std::vector<double> voltage_V, deflection_mm, t_s;
-  bool resampled = false;
-};
-
-UniformRecording MakeUniform(const Recording& rec) {
-  if (rec.t_s.size() < 2 || rec.deflection_mm.size() != rec.t_s.size())
-    throw InputError(rec.source +
-                     ": needs time, voltage and deflection columns with 2 or more rows");
-  UniformRecording out;
-  if (IsUniformGrid(rec.t_s, &out.dt_s)) {
-    out.t_s = rec.t_s;
-    out.voltage_V = rec.voltage_V;
-    out.deflection_mm = rec.deflection_mm;
-    return out;
-  }
-  std::vector<double> steps;
-  for (size_t k = 1; k < rec.t_s.size(); ++k) steps.push_back(rec.t_s[k] - rec.t_s[k - 1]);
-  std::nth_element(steps.begin(), steps.begin() + static_cast<long>(steps.size() / 2), steps.end());
-  out.dt_s = steps[steps.size() / 2];
-  out.resampled = true;
-  size_t j = 0;
-  for (double t = rec.t_s.front(); t <= rec.t_s.back() + 1e-9 * out.dt_s; t += out.dt_s) {
-    while (j + 1 < rec.t_s.size() && rec.t_s[j + 1] <= t) ++j;
-    out.t_s.push_back(t);
-    out.voltage_V.push_back(rec.voltage_V[j]);  // zero-order hold
-    if (j + 1 < rec.t_s.size()) {
-      const double w = (t - rec.t_s[j]) / (rec.t_s[j + 1] - rec.t_s[j]);
-      out.deflection_mm.push_back((1 - w) * rec.deflection_mm[j] + w * rec.deflection_mm[j + 1]);
-    } else {
-      out.deflection_mm.push_back(rec.deflection_mm[j]);
-    }
-  }
-  return out;
-}
-
 // A level's segment in the form the local fit uses. A segment at the start of its
 // recording starts at rest. One with a lead-in starts where the previous level left the
 // actuator: at an equilibrium that the new level's model does not share, because the
@@ -148,7 +109,7 @@ TsEstimate IdentifyTsModel(const std::vector<Recording>& recordings,
   std::vector<UniformRecording> uniform;
   std::vector<LevelAnalysis> analyses;
   for (size_t r = 0; r < recordings.size(); ++r) {
-    uniform.push_back(MakeUniform(recordings[r]));
+    uniform.push_back(OnUniformGrid(recordings[r]));
     const UniformRecording& u = uniform.back();
     if (u.resampled)
       result.notes.push_back(recordings[r].source + ": non-uniform time, resampled to " +

@@ -14,7 +14,7 @@ namespace flexid::model {
 namespace {
 
 constexpr const char* kSchedulingChoices =
-    "expected \"abs_voltage\", \"voltage\" or \"abs_voltage_held\"";
+    "expected \"abs_voltage\", \"voltage\", \"abs_voltage_held\" or \"abs_voltage_delayed\"";
 
 using nlohmann::json;
 using nlohmann::ordered_json;
@@ -321,6 +321,16 @@ class DocumentReader {
       model.rest_band_V = FiniteNumber(*it, "/scheduling/rest_band_V");
       if (model.rest_band_V < 0.0) Fail("/scheduling/rest_band_V", "expected a number >= 0");
     }
+    // abs_voltage_delayed: the premise's delay; by default the smallest dead time of the
+    // local models (a global fit shares one dead time among the rules).
+    if (const auto it = scheduling.find("delay_s"); it != scheduling.end()) {
+      model.scheduling_delay_s = FiniteNumber(*it, "/scheduling/delay_s");
+      if (model.scheduling_delay_s < 0.0) Fail("/scheduling/delay_s", "expected a number >= 0");
+    } else if (model.scheduling == SchedulingVariable::kAbsVoltageDelayed) {
+      model.scheduling_delay_s = model.rules.front().tf.delay_s;
+      for (const LocalModel& rule : model.rules)
+        model.scheduling_delay_s = std::min(model.scheduling_delay_s, rule.tf.delay_s);
+    }
     const json& memberships = Required(scheduling, "memberships", "/scheduling",
                                        "expected one membership per local model");
     if (!memberships.is_array()) {
@@ -471,7 +481,7 @@ ordered_json OrderedForWriting(const json& document) {
     }
   }
   if (const auto it = document.find("scheduling"); it != document.end() && it->is_object()) {
-    out["scheduling"] = Ordered(*it, {"variable", "rest_band_V", "memberships"});
+    out["scheduling"] = Ordered(*it, {"variable", "delay_s", "rest_band_V", "memberships"});
     if (const auto m = it->find("memberships"); m != it->end() && m->is_array()) {
       for (std::size_t i = 0; i < m->size(); ++i) {
         out["scheduling"]["memberships"][i] = Ordered((*m)[i], {"shape", "params"});
@@ -530,6 +540,8 @@ json ModelToJson(const ModelDocument& document) {
                          {"memberships", std::move(memberships)}};
     if (model.scheduling == SchedulingVariable::kAbsVoltageHeld)
       out["scheduling"]["rest_band_V"] = model.rest_band_V;
+    if (model.scheduling == SchedulingVariable::kAbsVoltageDelayed)
+      out["scheduling"]["delay_s"] = model.scheduling_delay_s;
   }
   if (!document.augmentations.empty()) {
     json augmentations = json::array();

@@ -18,7 +18,9 @@
 //     (the convention is den[0] == 1, but any non-zero leading coefficient is read as
 //     written); deg num <= deg den. delay_s is optional (default 0), finite and >= 0.
 //   - every local model has level_V (finite); all local models have the same order.
-//   - scheduling.variable is "abs_voltage" (the default when absent) or "voltage";
+//   - scheduling.variable is "abs_voltage" (the default when absent), "voltage",
+//     "abs_voltage_held" (with optional rest_band_V) or "abs_voltage_delayed" (with
+//     optional delay_s, the premise's delay; default the smallest local dead time);
 //     memberships has one entry per local model, in the same order; shape is
 //     "triangular", "trapezoidal", "gaussian" or "sigmoid" with the parameters of
 //     ts_fuzzy.h's Membership. In trapezoidal parameters JSON null stands for -infinity

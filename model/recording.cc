@@ -8,6 +8,7 @@
 #include <stdexcept>
 
 #include "model/errors.h"
+#include "model/simulate.h"
 #include "model/text_file.h"
 
 namespace flexid::model {
@@ -434,6 +435,37 @@ void WritePredictionCsv(std::ostream& out, std::span<const double> t_s,
     }
   }
   out.write(chunk.data(), static_cast<std::streamsize>(chunk.size()));
+}
+
+UniformRecording OnUniformGrid(const Recording& rec) {
+  if (rec.t_s.size() < 2 || rec.deflection_mm.size() != rec.t_s.size())
+    throw InputError(rec.source +
+                     ": needs time, voltage and deflection columns with 2 or more rows");
+  UniformRecording out;
+  if (IsUniformGrid(rec.t_s, &out.dt_s)) {
+    out.t_s = rec.t_s;
+    out.voltage_V = rec.voltage_V;
+    out.deflection_mm = rec.deflection_mm;
+    return out;
+  }
+  std::vector<double> steps;
+  for (size_t k = 1; k < rec.t_s.size(); ++k) steps.push_back(rec.t_s[k] - rec.t_s[k - 1]);
+  std::nth_element(steps.begin(), steps.begin() + static_cast<long>(steps.size() / 2), steps.end());
+  out.dt_s = steps[steps.size() / 2];
+  out.resampled = true;
+  size_t j = 0;
+  for (double t = rec.t_s.front(); t <= rec.t_s.back() + 1e-9 * out.dt_s; t += out.dt_s) {
+    while (j + 1 < rec.t_s.size() && rec.t_s[j + 1] <= t) ++j;
+    out.t_s.push_back(t);
+    out.voltage_V.push_back(rec.voltage_V[j]);  // zero-order hold
+    if (j + 1 < rec.t_s.size()) {
+      const double w = (t - rec.t_s[j]) / (rec.t_s[j + 1] - rec.t_s[j]);
+      out.deflection_mm.push_back((1 - w) * rec.deflection_mm[j] + w * rec.deflection_mm[j + 1]);
+    } else {
+      out.deflection_mm.push_back(rec.deflection_mm[j]);
+    }
+  }
+  return out;
 }
 
 }  // namespace flexid::model

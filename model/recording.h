@@ -58,4 +58,15 @@ void WriteRecordingCsv(const std::string& path, const Recording& recording);
 void WritePredictionCsv(std::ostream& out, std::span<const double> t_s,
                         std::span<const double> voltage_V, std::span<const double> predicted_mm);
 
+// A recording on a uniform grid: as given when it already is one, otherwise resampled to
+// its median sample period (voltage held, deflection interpolated linearly).
+struct UniformRecording {
+  double dt_s = 0.0;
+  std::vector<double> voltage_V, deflection_mm, t_s;
+  bool resampled = false;
+};
+
+// Throws InputError (named by source) with fewer than 2 rows or without deflection.
+UniformRecording OnUniformGrid(const Recording& rec);
+
 }  // namespace flexid::model

@@ -32,8 +32,20 @@ void CheckSeries(std::span<const double> t_s, std::span<const double> voltage_V)
 }
 
 // Scheduling value used to pick the operating point (see kSchedulingResolution_V).
-double OperatingZ(Scheduler& scheduler, double voltage_V) {
-  return std::round(scheduler.Next(voltage_V) / kSchedulingResolution_V) * kSchedulingResolution_V;
+double OperatingZ(Scheduler& scheduler, double voltage_V, double resolution_V) {
+  return std::round(scheduler.Next(voltage_V) / resolution_V) * resolution_V;
+}
+
+// kAbsVoltageDelayed: the premise at sample time t_k is the voltage in force at
+// t_k - delay, i.e. sample k - ceil(delay / dt) on a uniform grid.
+long PremiseDelaySamples(const TsModel& model, double dt_s) {
+  if (model.scheduling != SchedulingVariable::kAbsVoltageDelayed) return 0;
+  return static_cast<long>(std::ceil(model.scheduling_delay_s / dt_s - 1e-9));
+}
+
+void CheckResolution(const SimulationOptions& options) {
+  if (!(options.scheduling_resolution_V > 0.0) || !std::isfinite(options.scheduling_resolution_V))
+    throw std::invalid_argument("scheduling resolution must be finite and > 0");
 }
 
 // The frozen model at one scheduling value, realised (state_space.h).
@@ -133,7 +145,9 @@ void RunUniform(const TsModel& model, double dt_s, std::span<const double> u,
   // largest dead time of any rule is up[k - d] without a branch.
   double max_delay_s = 0.0;
   for (const LocalModel& rule : model.rules) max_delay_s = std::max(max_delay_s, rule.tf.delay_s);
-  const long pad = static_cast<long>(std::ceil(max_delay_s / dt_s)) + 2;
+  const long premise_delay = PremiseDelaySamples(model, dt_s);
+  const long pad = std::max(static_cast<long>(std::ceil(max_delay_s / dt_s)), premise_delay) + 2;
+  const double resolution_V = options.scheduling_resolution_V;
   std::vector<double> padded(static_cast<size_t>(pad), u_before);
   padded.insert(padded.end(), u.begin(), u.end());
   const double* up = padded.data() + pad;
@@ -148,7 +162,8 @@ void RunUniform(const TsModel& model, double dt_s, std::span<const double> u,
   };
 
   Scheduler scheduler(model);
-  Vec x = InitialState(OperatingPointAt(model, OperatingZ(scheduler, u_before)).ss, u_before);
+  Vec x = InitialState(
+      OperatingPointAt(model, OperatingZ(scheduler, u_before, resolution_V)).ss, u_before);
   const long count = static_cast<long>(u.size());
   if (memberships) memberships->resize(u.size() * m);
 
@@ -167,7 +182,7 @@ void RunUniform(const TsModel& model, double dt_s, std::span<const double> u,
   uint64_t last_key = ~uint64_t{0};
   const UniformEntry<N>* e = nullptr;
   for (long k = 0; k < count; ++k) {
-    const double z = OperatingZ(scheduler, up[k]);
+    const double z = OperatingZ(scheduler, up[k - premise_delay], resolution_V);
     const uint64_t key = std::bit_cast<uint64_t>(z);
     if (key != last_key) {
       auto delayed = [&](const UniformEntry<N>* p) {
@@ -247,7 +262,7 @@ struct StreamingSimulator::Impl {
   }
 
   void SelectPoint(double voltage_V) {
-    const double z = OperatingZ(scheduler, voltage_V);
+    const double z = OperatingZ(scheduler, voltage_V, options.scheduling_resolution_V);
     const uint64_t key = std::bit_cast<uint64_t>(z);
     auto it = points.find(key);
     if (it == points.end()) {
@@ -314,6 +329,20 @@ struct StreamingSimulator::Impl {
     }
   }
 
+  // The premise's voltage for a sample (t_s, voltage_V) not yet in the history: the
+  // voltage itself, or for kAbsVoltageDelayed the one in force at t_s - delay.
+  double PremiseVoltage(double t_s, double voltage_V) const {
+    if (model.scheduling != SchedulingVariable::kAbsVoltageDelayed) return voltage_V;
+    const double at_s = t_s - model.scheduling_delay_s;
+    if (SameTime(at_s, t_s)) return voltage_V;
+    double value = u_before_V;
+    for (const auto& [t_j, u_j] : history) {
+      if (t_j > at_s && !SameTime(t_j, at_s)) break;
+      value = u_j;
+    }
+    return value;
+  }
+
   double Output() const {
     const double state = x.size() > 0 ? x(0) : 0.0;
     return state + point->op.ss.D * DelayedInput(t_now_s);
@@ -328,12 +357,12 @@ struct StreamingSimulator::Impl {
       u_before_V = options.start_in_steady_state ? voltage_V : options.initial_voltage_V;
       SelectPoint(u_before_V);
       x = InitialState(point->op.ss, u_before_V);
-      SelectPoint(voltage_V);
+      SelectPoint(PremiseVoltage(t_s, voltage_V));
     } else {
       if (!(t_s > t_now_s)) throw std::invalid_argument("StreamingSimulator: time not increasing");
       AdvanceTo(t_s);  // under the operating point of the previous sample
       if (x.size() > 0) AddMarkovTerm(point->op.remap, DelayedInput(t_s), +1.0, &x);
-      SelectPoint(voltage_V);
+      SelectPoint(PremiseVoltage(t_s, voltage_V));
       if (x.size() > 0) AddMarkovTerm(point->op.remap, DelayedInput(t_s), -1.0, &x);
     }
     history.emplace_back(t_s, voltage_V);
@@ -345,10 +374,13 @@ struct StreamingSimulator::Impl {
 StreamingSimulator::StreamingSimulator(const TsModel& model, const SimulationOptions& options)
     : impl_(std::make_unique<Impl>()) {
   CheckModel(model);
+  CheckResolution(options);
   impl_->model = model;
   impl_->options = options;
   for (const LocalModel& rule : model.rules)
     impl_->max_delay_s = std::max(impl_->max_delay_s, rule.tf.delay_s);
+  if (model.scheduling == SchedulingVariable::kAbsVoltageDelayed)
+    impl_->max_delay_s = std::max(impl_->max_delay_s, model.scheduling_delay_s);
 }
 StreamingSimulator::~StreamingSimulator() = default;
 StreamingSimulator::StreamingSimulator(StreamingSimulator&&) noexcept = default;
@@ -378,6 +410,7 @@ std::vector<double> SimulateUniform(const TsModel& model, double dt_s,
                                     const SimulationOptions& options,
                                     std::vector<double>* memberships) {
   CheckModel(model);
+  CheckResolution(options);
   if (!(dt_s > 0.0) || !std::isfinite(dt_s))
     throw std::invalid_argument("sample period must be finite and > 0");
   for (size_t k = 0; k < voltage_V.size(); ++k)

@@ -30,6 +30,10 @@ struct SimulationOptions {
   double initial_voltage_V = 0.0;
   // ... or, when this is set, under the first sample's voltage.
   bool start_in_steady_state = false;
+  // Resolution of the operating point (kSchedulingResolution_V). Identification uses a
+  // coarser one on inputs that vary continuously, so that a simulation inside a fit
+  // discretises a few hundred operating points rather than thousands.
+  double scheduling_resolution_V = kSchedulingResolution_V;
 };
 
 // Predicted output at each t_s[k] for voltage_V[k] held on [t_k, t_{k+1}).

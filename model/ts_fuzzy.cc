@@ -123,13 +123,15 @@ const char* SchedulingVariableName(SchedulingVariable variable) {
       return "voltage";
     case SchedulingVariable::kAbsVoltageHeld:
       return "abs_voltage_held";
+    case SchedulingVariable::kAbsVoltageDelayed:
+      return "abs_voltage_delayed";
   }
   return "unknown";
 }
 
 bool ParseSchedulingVariable(const std::string& name, SchedulingVariable* variable) {
   for (auto v : {SchedulingVariable::kAbsVoltage, SchedulingVariable::kVoltage,
-                 SchedulingVariable::kAbsVoltageHeld}) {
+                 SchedulingVariable::kAbsVoltageHeld, SchedulingVariable::kAbsVoltageDelayed}) {
     if (name == SchedulingVariableName(v)) {
       *variable = v;
       return true;
@@ -142,6 +144,8 @@ bool IsValid(const TsModel& model, std::string* error) {
   if (model.rules.empty()) return Fail(error, "T-S model has no rules");
   if (!std::isfinite(model.rest_band_V) || model.rest_band_V < 0.0)
     return Fail(error, "rest_band_V must be finite and >= 0");
+  if (!std::isfinite(model.scheduling_delay_s) || model.scheduling_delay_s < 0.0)
+    return Fail(error, "the scheduling delay must be finite and >= 0");
   int order = -1;
   for (size_t i = 0; i < model.rules.size(); ++i) {
     const LocalModel& rule = model.rules[i];

@@ -31,7 +31,15 @@
 // the relaxation after a 8 V pulse then follows the 8 V model, as it did in the
 // recording that model was identified from (a 0 <-> 8 V square wave). With plain |u| the
 // blend would switch to the lowest level's model at every return to 0 V and could not
-// reproduce its own local model on that recording. Identification uses kAbsVoltageHeld.
+// reproduce its own local model on that recording. Per-level identification
+// (identify_ts.h) uses kAbsVoltageHeld.
+//
+// With kAbsVoltageDelayed, z(t) = |u(t - scheduling_delay_s)|: the operating point
+// follows the voltage as it arrives after the dead time, so the rule that governs the
+// response to a voltage change switches when the change reaches the actuator, and the
+// relaxation after a pulse follows the rule of the rest voltage. Simulations read z at
+// each sample time t_k as the voltage in force (zero-order hold) at t_k - delay. Global
+// identification (identify_global.h) chooses among the three premises on held-out data.
 #pragma once
 
 #include <string>
@@ -58,7 +66,7 @@ bool IsValid(const Membership& membership, std::string* error);
 const char* MembershipShapeName(MembershipShape shape);
 bool ParseMembershipShape(const std::string& name, MembershipShape* shape);
 
-enum class SchedulingVariable { kAbsVoltage, kVoltage, kAbsVoltageHeld };
+enum class SchedulingVariable { kAbsVoltage, kVoltage, kAbsVoltageHeld, kAbsVoltageDelayed };
 const char* SchedulingVariableName(SchedulingVariable variable);
 bool ParseSchedulingVariable(const std::string& name, SchedulingVariable* variable);
 
@@ -72,6 +80,8 @@ struct TsModel {
   SchedulingVariable scheduling = SchedulingVariable::kAbsVoltage;
   std::vector<LocalModel> rules;
   double rest_band_V = 0.0;  // kAbsVoltageHeld: |u| at or below this is rest
+  // kAbsVoltageDelayed: the delay of the premise, s (finite, >= 0).
+  double scheduling_delay_s = 0.0;
 };
 
 // The scheduling value z_k for a sequence of voltages (kAbsVoltageHeld has memory).
@@ -88,7 +98,8 @@ class Scheduler {
 // At least one rule; every local model valid and of the same order; memberships valid.
 bool IsValid(const TsModel& model, std::string* error);
 
-// The memoryless part of the scheduling: |u| or u (kAbsVoltageHeld gives |u|).
+// The memoryless part of the scheduling: |u| or u (kAbsVoltageHeld and
+// kAbsVoltageDelayed give |u|; the simulators apply the hold and the delay).
 double SchedulingValue(const TsModel& model, double voltage_V);
 
 // Eq. (16): normalised firing strengths mu (size = number of rules, sum 1). Where no

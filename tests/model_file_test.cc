@@ -173,6 +173,34 @@ TEST(ModelFile, MembershipShapesAndVoltageScheduling) {
             SchedulingVariable::kAbsVoltage);
 }
 
+TEST(ModelFile, DelayedVoltageSchedulingKeepsItsDelay) {
+  json document = json::parse(kTsFile);
+  document["scheduling"]["variable"] = "abs_voltage_delayed";
+  document["scheduling"]["delay_s"] = 3.5;
+  const ModelDocument read = ParseModelJson(document.dump(), "m.json");
+  EXPECT_EQ(read.ts.scheduling, SchedulingVariable::kAbsVoltageDelayed);
+  EXPECT_EQ(read.ts.scheduling_delay_s, 3.5);
+  EXPECT_EQ(ModelToJson(read)["scheduling"]["delay_s"], 3.5);
+
+  // Without delay_s the premise takes the smallest dead time of the local models.
+  document["scheduling"].erase("delay_s");
+  document["local_models"][0]["delay_s"] = 4.0;
+  document["local_models"][1]["delay_s"] = 2.5;
+  EXPECT_EQ(ParseModelJson(document.dump(), "m.json").ts.scheduling_delay_s, 2.5);
+
+  document["scheduling"]["delay_s"] = -1;
+  EXPECT_THROW(
+      {
+        try {
+          ParseModelJson(document.dump(), "m.json");
+        } catch (const InputError& e) {
+          EXPECT_NE(std::string(e.what()).find("/scheduling/delay_s"), std::string::npos);
+          throw;
+        }
+      },
+      InputError);
+}
+
 TEST(ModelFile, TransferFunctionDocumentBecomesASingleRule) {
   const ModelDocument document = ParseModelJson(kSmallestFile, "model.json");
   const TsModel model = AsTsModel(document);

@@ -23,6 +23,7 @@
 #include "model/errors.h"
 #include "model/frequency_response.h"
 #include "model/greybox.h"
+#include "model/identify_global.h"
 #include "model/identify_ts.h"
 #include "model/model_file.h"
 #include "model/physics.h"
@@ -217,6 +218,72 @@ void RunFree(const IdentifyArgs& args, model::ModelDocument* doc,
   AddValidation(args, estimate.model, doc);
 }
 
+// --method global: the global T-S fit (model/identify_global.h), the structure chosen on
+// held-out data unless --zeros/--poles fix the orders.
+void RunGlobal(const IdentifyArgs& args, model::ModelDocument* doc,
+               const std::vector<model::Recording>& recordings) {
+  model::GlobalIdentifyOptions options;
+  if (args.command->count("--zeros") > 0 || args.command->count("--poles") > 0) {
+    options.num_zeros = args.zeros;
+    options.num_poles = args.poles;
+  }
+  options.max_delay_s = args.max_delay_s;
+  options.fixed_delay_s = args.delay_s;
+  Progress progress("identify");
+  progress.Note("fitting the T-S model on " + std::to_string(recordings.size()) +
+                (recordings.size() == 1 ? " recording" : " recordings") +
+                " and choosing its structure on held-out data ...");
+  const model::GlobalEstimate e = model::IdentifyGlobalTs(recordings, options);
+  progress.Finish();
+  if (e.model.rules.size() == 1) {
+    *doc = model::FromTransferFunction(e.model.rules.front().tf);
+  } else {
+    *doc = model::FromTsModel(e.model);
+    for (size_t i = 0; i < e.rules.size(); ++i)
+      doc->local_extra[i] = {{"dc_gain",
+                              {{"value", e.rules[i].dc_gain.value},
+                               {"half_width_95", Number(e.rules[i].dc_gain.half_width_95)}}}};
+  }
+  json structure = {{"method", "global"},
+                    {"num_zeros", e.structure.num_zeros},
+                    {"num_poles", e.structure.num_poles},
+                    {"premise", model::SchedulingVariableName(e.structure.premise)},
+                    {"knots_V", e.structure.knots_V},
+                    {"reason", e.reason}};
+  doc->extra["structure"] = structure;
+  doc->extra["fit"] = model::FitFiguresToJson(e.fit);
+  doc->extra["held_out_rmse_mm"] = Number(e.held_out_rmse_mm);
+  doc->extra["noise_std_mm"] = e.noise_std_mm;
+  doc->extra["dead_time_s"] = {{"value", e.delay_s.value},
+                               {"half_width_95", Number(e.delay_s.half_width_95)}};
+  doc->extra["levels_V"] = e.levels_V;
+  if (e.rules.size() == 1)
+    doc->extra["dc_gain"] = {{"value", e.rules[0].dc_gain.value},
+                             {"half_width_95", Number(e.rules[0].dc_gain.half_width_95)}};
+  if (!e.undetermined.empty()) doc->extra["undetermined"] = e.undetermined;
+  if (!e.warnings.empty()) doc->extra["warnings"] = e.warnings;
+  if (!e.notes.empty()) doc->extra["notes"] = e.notes;
+  if (!args.as_json) {
+    std::cout << "structure: " << e.structure.Describe() << "\n  " << e.reason << "\n";
+    PrintFit("fit", e.fit);
+    std::cout << "  held-out RMSE " << FormatNumber(e.held_out_rmse_mm, 4)
+              << " mm; noise estimate " << FormatNumber(e.noise_std_mm, 4) << " mm; dead time "
+              << FormatNumber(e.delay_s.value, 4) << " +- "
+              << FormatNumber(e.delay_s.half_width_95, 3) << " s\n";
+    Table table({"rule V", "DC gain mm/V", "+- 95 %", "poles"});
+    for (size_t i = 0; i < e.rules.size(); ++i) {
+      std::string poles;
+      for (const auto& p : e.rules[i].poles) poles += (poles.empty() ? "" : "  ") + FormatComplex(p, 4);
+      table.AddRow({FormatNumber(e.rules[i].knot_V, 4), FormatNumber(e.rules[i].dc_gain.value, 5),
+                    FormatNumber(e.rules[i].dc_gain.half_width_95, 3), poles});
+    }
+    table.Print(std::cout, "    ");
+    for (const auto& w : e.warnings) std::cout << "  warning: " << w << "\n";
+    for (const auto& note : e.notes) std::cout << "  note: " << note << "\n";
+  }
+  AddValidation(args, e.model, doc);
+}
+
 void RunPhysics(const IdentifyArgs& args, model::ModelDocument* doc,
                 const std::vector<model::Recording>& recordings) {
   const model::PhysicalParameters start =
@@ -319,8 +386,8 @@ void RunFrequency(const IdentifyArgs& args, model::ModelDocument* doc,
 void CheckOptions(const IdentifyArgs& args) {
   if (args.structure != "free" && args.structure != "physics")
     throw UsageError("--structure: expected free or physics, got \"" + args.structure + "\"");
-  if (args.method != "time" && args.method != "frequency")
-    throw UsageError("--method: expected time or frequency, got \"" + args.method + "\"");
+  if (args.method != "time" && args.method != "global" && args.method != "frequency")
+    throw UsageError("--method: expected time, global or frequency, got \"" + args.method + "\"");
   if (args.structure == "physics" && args.method == "frequency")
     throw UsageError("--structure physics fits in the time domain; drop --method frequency");
   if (!(args.max_delay_s >= 0.0) || !std::isfinite(args.max_delay_s))
@@ -338,6 +405,8 @@ void RunLocal(const IdentifyArgs& args, const std::vector<model::Recording>& rec
     RunPhysics(args, &doc, recordings);
   else if (args.method == "frequency")
     RunFrequency(args, &doc, recordings);
+  else if (args.method == "global")
+    RunGlobal(args, &doc, recordings);
   else
     RunFree(args, &doc, recordings);
   doc.extra["identified_from"] = args.names;
@@ -533,7 +602,9 @@ void RegisterIdentifyCommand(CLI::App& app) {
   cmd->add_option("--structure", args->structure,
                   "free (Eq. 18 coefficients) or physics (Eqs. 1-13 parameters)");
   cmd->add_option("--method", args->method,
-                  "time (output error) or frequency (square-wave frequency responses)");
+                  "time (a transfer function per level, blended), global (the whole T-S model "
+                  "in one output-error fit, structure chosen on held-out data; in progress) or "
+                  "frequency (square-wave frequency responses)");
   cmd->add_option("--geometry", args->geometry_mm,
                   "Beam LxWxh in mm for --structure physics (default 40x8x2)");
   cmd->add_option(

@@ -1,0 +1,983 @@
+#include "model/identify_global.h"
+
+#include <ceres/ceres.h>
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <limits>
+#include <map>
+#include <numeric>
+#include <stdexcept>
+
+#include "model/errors.h"
+#include "model/levels.h"
+#include "model/polynomial.h"
+#include "model/simulate.h"
+
+namespace flexid::model {
+namespace {
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+// Candidates within this factor of the best held-out error count as equally good; the
+// one with fewest parameters wins.
+constexpr double kHeldOutTolerance = 1.02;
+
+std::string Volts(double v) {
+  char text[32];
+  std::snprintf(text, sizeof text, "%.3g", v);
+  return text;
+}
+
+std::string VoltList(const std::vector<double>& values) {
+  std::string out;
+  for (size_t i = 0; i < values.size(); ++i)
+    out += (i == 0 ? "" : i + 1 == values.size() ? " and " : ", ") + Volts(values[i]);
+  return out + " V";
+}
+
+const char* PremiseText(SchedulingVariable premise) {
+  switch (premise) {
+    case SchedulingVariable::kAbsVoltageDelayed:
+      return "|u(t - T)|";
+    case SchedulingVariable::kAbsVoltageHeld:
+      return "|u| held through rest";
+    case SchedulingVariable::kVoltage:
+      return "u";
+    case SchedulingVariable::kAbsVoltage:
+      break;
+  }
+  return "|u(t)|";
+}
+
+// ---------------------------------------------------------------------------------------
+// Data: recordings on one uniform grid, and which samples a fit uses.
+// ---------------------------------------------------------------------------------------
+
+struct Series {
+  std::string source;
+  std::vector<double> t_s, u, y;
+};
+
+using Mask = std::vector<std::vector<uint8_t>>;  // per series, per sample: fitted?
+
+struct Problem {
+  double dt_s = 0.0;
+  std::vector<Series> series;
+  double rest_band_V = 0.0;
+  double resolution_V = kSchedulingResolution_V;
+  double w_min = 0.0, w_max = 0.0;  // band of the factors' natural frequencies, rad/s
+  double max_delay_s = 10.0;
+  std::optional<double> fixed_delay_s;
+  int max_iterations = 60;
+};
+
+size_t Count(const Mask& mask) {
+  size_t n = 0;
+  for (const auto& m : mask) n += static_cast<size_t>(std::count(m.begin(), m.end(), 1));
+  return n;
+}
+
+// ---------------------------------------------------------------------------------------
+// Parameters: theta = [T, K at each knot, dynamics (factor logs, numerator shape) at each
+// dynamics knot]. A rule's dynamics between two dynamics knots interpolate linearly in
+// the factor coefficients c and the shape, as the blend itself does (ts_fuzzy.h), so the
+// T-S model with one rule per gain knot is exactly this parameterisation.
+// ---------------------------------------------------------------------------------------
+
+struct Layout {
+  GlobalStructure s;
+  int PerDynamics() const { return s.num_poles + s.num_zeros; }
+  int Rules() const { return static_cast<int>(s.knots_V.size()); }
+  int DynamicsKnots() const { return static_cast<int>(s.dynamics_knots_V.size()); }
+  int Size() const { return 1 + Rules() + DynamicsKnots() * PerDynamics(); }
+  const double* Dynamics(const double* theta, int d) const {
+    return theta + 1 + Rules() + d * PerDynamics();
+  }
+
+  // Factor coefficients c (positive) and shape at voltage v, interpolated between the
+  // dynamics knots and held beyond them.
+  std::vector<double> DynamicsAt(const double* theta, double v) const {
+    const auto& k = s.dynamics_knots_V;
+    int a = 0, b = 0;
+    double w = 0.0;
+    if (v >= k.back()) {
+      a = b = DynamicsKnots() - 1;
+    } else if (v > k.front()) {
+      b = static_cast<int>(std::upper_bound(k.begin(), k.end(), v) - k.begin());
+      a = b - 1;
+      w = (v - k[static_cast<size_t>(a)]) / (k[static_cast<size_t>(b)] - k[static_cast<size_t>(a)]);
+    }
+    std::vector<double> out(static_cast<size_t>(PerDynamics()));
+    const double* pa = Dynamics(theta, a);
+    const double* pb = Dynamics(theta, b);
+    for (int j = 0; j < PerDynamics(); ++j) {
+      const bool factor = j < s.num_poles;
+      const double x = factor ? std::exp(pa[j]) : pa[j], y = factor ? std::exp(pb[j]) : pb[j];
+      out[static_cast<size_t>(j)] = (1 - w) * x + w * y;
+    }
+    return out;
+  }
+
+  TransferFunction Rule(const double* theta, int r) const {
+    const std::vector<double> d = DynamicsAt(theta, s.knots_V[static_cast<size_t>(r)]);
+    std::vector<double> den = {1.0};
+    int j = 0;
+    for (int q = 0; q < s.num_poles / 2; ++q, j += 2)
+      den = MultiplyPolynomials(den, {1.0, d[static_cast<size_t>(j)], d[static_cast<size_t>(j + 1)]});
+    if (s.num_poles % 2 == 1) den = MultiplyPolynomials(den, {1.0, d[static_cast<size_t>(j++)]});
+    const double scale = theta[1 + r] * den.back();
+    std::vector<double> num(static_cast<size_t>(s.num_zeros) + 1);
+    num.back() = scale;
+    for (int i = 1; i <= s.num_zeros; ++i)
+      num[static_cast<size_t>(s.num_zeros - i)] = scale * d[static_cast<size_t>(j + i - 1)];
+    return {num, den, theta[0]};
+  }
+
+  TsModel Model(const double* theta, double rest_band_V) const {
+    std::vector<LocalModel> rules;
+    for (int r = 0; r < Rules(); ++r)
+      rules.push_back({s.knots_V[static_cast<size_t>(r)], Rule(theta, r), {}});
+    TsModel model = MakeTsModelOnLevels(std::move(rules), s.premise, rest_band_V);
+    model.scheduling_delay_s = theta[0];
+    return model;
+  }
+
+  // Bounds of every parameter (header: physical plausibility).
+  void Bounds(const Problem& problem, std::vector<double>* lo, std::vector<double>* hi) const {
+    lo->assign(static_cast<size_t>(Size()), -kInf);
+    hi->assign(static_cast<size_t>(Size()), kInf);
+    (*lo)[0] = 0.0;
+    (*hi)[0] = problem.max_delay_s;
+    const double lw = std::log(problem.w_min), hw = std::log(problem.w_max);
+    for (int d = 0; d < DynamicsKnots(); ++d) {
+      size_t j = static_cast<size_t>(1 + Rules() + d * PerDynamics());
+      for (int q = 0; q < s.num_poles / 2; ++q, j += 2) {
+        // c1 = 2 zeta w_n (damping down to 1e-3) = the sum of the roots when they are
+        // real, so c1 <= w_max keeps real roots in the band; c0 = w_n^2 keeps complex ones.
+        (*lo)[j] = std::log(2e-3) + lw;
+        (*hi)[j] = hw;
+        (*lo)[j + 1] = 2 * lw;
+        (*hi)[j + 1] = 2 * hw;
+      }
+      if (s.num_poles % 2 == 1) {
+        (*lo)[j] = lw;
+        (*hi)[j] = hw;
+      }
+    }
+  }
+
+  std::string ParameterName(int index) const {
+    if (index == 0) return "dead time";
+    if (index <= Rules())
+      return "DC gain at " + Volts(s.knots_V[static_cast<size_t>(index - 1)]) + " V";
+    const int d = (index - 1 - Rules()) / PerDynamics(), j = (index - 1 - Rules()) % PerDynamics();
+    const std::string where = " of the dynamics at " + Volts(s.dynamics_knots_V[static_cast<size_t>(d)]) + " V";
+    if (j < s.num_poles) return "pole factor " + std::to_string(j / 2 + 1) + where;
+    return "zero coefficient " + std::to_string(j - s.num_poles + 1) + where;
+  }
+};
+
+// theta for structure `to` from a fitted theta of structure `from` with the same orders:
+// gains and dynamics evaluated at the new knots.
+std::vector<double> Transfer(const Layout& from, const std::vector<double>& theta,
+                             const Layout& to) {
+  std::vector<double> out = {theta[0]};
+  const TsModel model = from.Model(theta.data(), 0.0);
+  for (double v : to.s.knots_V) {
+    std::vector<double> mu;
+    NormalisedMemberships(model, v, &mu);
+    double k = 0.0;
+    for (size_t i = 0; i < mu.size(); ++i) k += mu[i] * theta[1 + i];
+    out.push_back(k);
+  }
+  for (double v : to.s.dynamics_knots_V) {
+    const std::vector<double> d = from.DynamicsAt(theta.data(), v);
+    for (int j = 0; j < to.PerDynamics(); ++j)
+      out.push_back(j < to.s.num_poles ? std::log(d[static_cast<size_t>(j)]) : d[static_cast<size_t>(j)]);
+  }
+  return out;
+}
+
+// Rule parameters (K, factor logs, shape) of a linear model of the layout's orders,
+// clamped into the bounds.
+std::vector<double> RuleParameters(const TransferFunction& tf, const Layout& layout,
+                                   const Problem& problem) {
+  const TransferFunction g = Normalised(tf);
+  std::vector<double> p(static_cast<size_t>(1 + layout.PerDynamics()), 0.0);
+  p[0] = std::isfinite(DcGain(g)) ? DcGain(g) : 0.0;
+  const double lw = std::log(problem.w_min), hw = std::log(problem.w_max);
+  auto clamp_log = [](double c, double lo, double hi) {
+    return std::clamp(std::log(std::max(c, 1e-300)), lo, hi);
+  };
+  size_t j = 1;
+  for (const std::vector<double>& f : RealFactors(g.den)) {
+    if (f.size() == 3 && j + 1 < 1 + static_cast<size_t>(layout.s.num_poles) + 1) {
+      p[j] = clamp_log(f[1], std::log(2e-3) + lw, hw);
+      p[j + 1] = clamp_log(f[2], 2 * lw, 2 * hw);
+      j += 2;
+    } else if (f.size() == 2) {
+      p[j++] = clamp_log(f[1], lw, hw);
+    }
+  }
+  const double num0 = g.num.back();
+  for (int i = 1; i <= layout.s.num_zeros; ++i) {
+    const long index = static_cast<long>(g.num.size()) - 1 - i;
+    p[static_cast<size_t>(layout.s.num_poles + i)] =
+        index >= 0 && num0 != 0.0 ? g.num[static_cast<size_t>(index)] / num0 : 0.0;
+  }
+  return p;
+}
+
+// ---------------------------------------------------------------------------------------
+// Simulation and the output-error fit
+// ---------------------------------------------------------------------------------------
+
+// Output error of `model` on the masked samples, written to residuals (if not null) in
+// series order; returns the sum of squares.
+double OutputError(const Problem& problem, const TsModel& model, const Mask& mask,
+                   double* residuals) {
+  SimulationOptions options;
+  options.scheduling_resolution_V = problem.resolution_V;
+  double ssr = 0.0;
+  size_t i = 0;
+  for (size_t r = 0; r < problem.series.size(); ++r) {
+    const auto& m = mask[r];
+    const auto last = std::find(m.rbegin(), m.rend(), 1);
+    if (last == m.rend()) continue;
+    const size_t end = static_cast<size_t>(m.rend() - last);
+    const Series& s = problem.series[r];
+    const std::vector<double> yhat =
+        SimulateUniform(model, problem.dt_s, std::span(s.u).first(end), options);
+    for (size_t k = 0; k < end; ++k) {
+      if (!m[k]) continue;
+      const double e = s.y[k] - yhat[k];
+      ssr += e * e;
+      if (residuals) residuals[i++] = e;
+    }
+  }
+  return ssr;
+}
+
+struct OutputErrorCost {
+  const Problem* problem;
+  const Layout* layout;
+  const Mask* mask;
+  bool operator()(double const* const* parameters, double* residuals) const {
+    try {
+      OutputError(*problem, layout->Model(parameters[0], problem->rest_band_V), *mask, residuals);
+      return true;
+    } catch (const std::invalid_argument&) {
+      return false;  // an invalid trial point: Ceres shrinks the step
+    }
+  }
+};
+
+struct FitResult {
+  std::vector<double> theta;
+  double ssr = kInf;
+  size_t samples = 0;
+  int iterations = 0;
+};
+
+FitResult Fit(const Problem& problem, const Layout& layout, const Mask& mask,
+              std::vector<double> theta) {
+  FitResult result;
+  result.samples = Count(mask);
+  const int p = layout.Size();
+  if (result.samples < static_cast<size_t>(2 * p))
+    throw InputError("too few samples (" + std::to_string(result.samples) + ") for " +
+                     std::to_string(p) + " parameters");
+  std::vector<double> lo, hi;
+  layout.Bounds(problem, &lo, &hi);
+  if (problem.fixed_delay_s) lo[0] = hi[0] = *problem.fixed_delay_s;
+  for (int j = 0; j < p; ++j)
+    theta[static_cast<size_t>(j)] =
+        std::clamp(theta[static_cast<size_t>(j)], lo[static_cast<size_t>(j)],
+                   hi[static_cast<size_t>(j)]);
+  auto* cost = new ceres::DynamicNumericDiffCostFunction<OutputErrorCost, ceres::FORWARD>(
+      new OutputErrorCost{&problem, &layout, &mask});
+  cost->AddParameterBlock(p);
+  cost->SetNumResiduals(static_cast<int>(result.samples));
+  ceres::Problem solver_problem;
+  solver_problem.AddResidualBlock(cost, nullptr, theta.data());
+  if (problem.fixed_delay_s)
+    solver_problem.SetManifold(theta.data(), new ceres::SubsetManifold(p, {0}));
+  for (int j = 0; j < p; ++j) {
+    if (problem.fixed_delay_s && j == 0) continue;
+    if (std::isfinite(lo[static_cast<size_t>(j)]))
+      solver_problem.SetParameterLowerBound(theta.data(), j, lo[static_cast<size_t>(j)]);
+    if (std::isfinite(hi[static_cast<size_t>(j)]))
+      solver_problem.SetParameterUpperBound(theta.data(), j, hi[static_cast<size_t>(j)]);
+  }
+  ceres::Solver::Options options;
+  options.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
+  options.linear_solver_type = ceres::DENSE_QR;
+  options.max_num_iterations = problem.max_iterations;
+  options.function_tolerance = 1e-9;
+  options.parameter_tolerance = 1e-10;
+  options.num_threads = 1;
+  options.logging_type = ceres::SILENT;
+  ceres::Solver::Summary summary;
+  ceres::Solve(options, &solver_problem, &summary);
+  result.theta = std::move(theta);
+  result.ssr = 2.0 * summary.final_cost;
+  result.iterations = static_cast<int>(summary.iterations.size());
+  if (!std::isfinite(result.ssr)) throw InputError("the fit diverged");
+  return result;
+}
+
+// ---------------------------------------------------------------------------------------
+// Folds, starting models, candidates
+// ---------------------------------------------------------------------------------------
+
+struct Fold {
+  Mask fit, held_out;
+};
+
+// Leave one recording out (at most 4 folds); one recording: alternate blocks in turn.
+std::vector<Fold> MakeFolds(const Problem& problem, const Mask& usable) {
+  std::vector<Fold> folds;
+  const size_t count = problem.series.size();
+  auto empty_like = [&usable] {
+    Mask m = usable;
+    for (auto& v : m) std::fill(v.begin(), v.end(), 0);
+    return m;
+  };
+  if (count >= 2) {
+    for (size_t f = 0; f < std::min<size_t>(count, 4); ++f) {
+      Fold fold{usable, empty_like()};
+      fold.held_out[f] = usable[f];
+      std::fill(fold.fit[f].begin(), fold.fit[f].end(), 0);
+      folds.push_back(std::move(fold));
+    }
+    return folds;
+  }
+  // Ten blocks in time, alternately fitted and held out, so that both folds see most
+  // levels of a staircase or a multilevel recording.
+  const size_t total = Count(usable), block = std::max<size_t>(1, total / 10);
+  Fold first{empty_like(), empty_like()};
+  size_t seen = 0;
+  for (size_t k = 0; k < usable[0].size(); ++k) {
+    if (!usable[0][k]) continue;
+    ((seen++ / block) % 2 == 0 ? first.fit : first.held_out)[0][k] = 1;
+  }
+  folds.push_back(first);
+  folds.push_back({first.held_out, first.fit});
+  return folds;
+}
+
+// The masked samples as segments for the linear start (identify.h): each run of fitted
+// samples simulated from its recording's start.
+std::vector<DataSegment> MaskedSegments(const Problem& problem, const Mask& mask) {
+  std::vector<DataSegment> segments;
+  for (size_t r = 0; r < problem.series.size(); ++r) {
+    const auto& m = mask[r];
+    size_t k = 0;
+    while (k < m.size()) {
+      while (k < m.size() && !m[k]) ++k;
+      const size_t begin = k;
+      while (k < m.size() && m[k]) ++k;
+      if (k - begin < 2) continue;
+      DataSegment seg;
+      seg.dt_s = problem.dt_s;
+      seg.voltage_V.assign(problem.series[r].u.begin(),
+                           problem.series[r].u.begin() + static_cast<long>(k));
+      seg.deflection_mm.assign(problem.series[r].y.begin(),
+                               problem.series[r].y.begin() + static_cast<long>(k));
+      seg.fit_begin = begin;
+      segments.push_back(std::move(seg));
+    }
+  }
+  return segments;
+}
+
+class Selector {
+ public:
+  Selector(const Problem& problem, const Mask& usable) : problem_(problem), usable_(usable) {
+    folds_ = MakeFolds(problem, usable);
+  }
+
+  // One linear model of the given orders on a mask (fold index, -1 for all data): every
+  // rule's start. Cached.
+  const std::vector<double>& LinearStart(int zeros, int poles, int fold) {
+    const auto key = std::make_tuple(zeros, poles, fold);
+    auto it = starts_.find(key);
+    if (it != starts_.end()) return it->second;
+    const Mask& mask = fold < 0 ? usable_ : folds_[static_cast<size_t>(fold)].fit;
+    IdentifyOptions options;
+    options.num_zeros = zeros;
+    options.num_poles = poles;
+    options.max_delay_s = problem_.max_delay_s;
+    options.max_iterations = 30;
+    if (problem_.fixed_delay_s) {
+      options.estimate_delay = false;
+      options.fixed_delay_s = *problem_.fixed_delay_s;
+    }
+    const TfEstimate e = IdentifyTransferFunction(MaskedSegments(problem_, mask), options);
+    GlobalStructure one{zeros, poles, SchedulingVariable::kAbsVoltage, {0.0}, {0.0}};
+    std::vector<double> theta = {e.tf.delay_s};
+    const std::vector<double> rule = RuleParameters(e.tf, Layout{one}, problem_);
+    theta.insert(theta.end(), rule.begin(), rule.end());
+    return starts_.emplace(key, std::move(theta)).first->second;
+  }
+
+  // Every rule from the linear start.
+  std::vector<double> Start(const GlobalStructure& s, int fold) {
+    const std::vector<double>& linear = LinearStart(s.num_zeros, s.num_poles, fold);
+    std::vector<double> theta = {linear[0]};
+    for (size_t r = 0; r < s.knots_V.size(); ++r) theta.push_back(linear[1]);
+    for (size_t d = 0; d < s.dynamics_knots_V.size(); ++d)
+      theta.insert(theta.end(), linear.begin() + 2, linear.end());
+    return theta;
+  }
+
+  // Fits a structure on all usable data from each given start (the linear start is
+  // always tried too) and keeps the best; then fits each fold from that solution and
+  // measures the held-out error. Starting the folds from the all-data fit keeps them in
+  // the same basin of the cost, so that folds compare structures rather than local
+  // minima. `all` receives the all-data parameters.
+  StructureTrial Evaluate(const std::string& stage, const GlobalStructure& s,
+                          const std::vector<std::vector<double>>& starts,
+                          std::vector<double>* all) {
+    StructureTrial trial{stage, s, kInf, ""};
+    const Layout layout{s};
+    try {
+      FitResult best;
+      std::vector<std::vector<double>> tries = starts;
+      tries.push_back(Start(s, -1));
+      for (auto& generic : GenericStarts(s)) tries.push_back(std::move(generic));
+      for (auto& start : tries) {
+        try {
+          FitResult fit = Fit(problem_, layout, usable_, std::move(start));
+          ++fits_;
+          if (fit.ssr < best.ssr) best = std::move(fit);
+        } catch (const InputError& e) {
+          trial.problem = e.what();
+        }
+      }
+      if (best.theta.empty()) return trial;
+      trial.problem.clear();
+      *all = best.theta;
+      double sse = 0.0;
+      size_t n = 0;
+      for (size_t f = 0; f < folds_.size(); ++f) {
+        const FitResult fit = Fit(problem_, layout, folds_[f].fit, best.theta);
+        ++fits_;
+        const double e =
+            OutputError(problem_, layout.Model(fit.theta.data(), problem_.rest_band_V),
+                        folds_[f].held_out, nullptr);
+        sse += e;
+        n += Count(folds_[f].held_out);
+      }
+      trial.held_out_rmse_mm = n > 0 ? std::sqrt(sse / static_cast<double>(n)) : kInf;
+    } catch (const InputError& e) {
+      trial.problem = e.what();
+    }
+    if (!std::isfinite(trial.held_out_rmse_mm) && trial.problem.empty())
+      trial.problem = "no held-out prediction";
+    return trial;
+  }
+
+  // Starts that do not depend on the linear fit: real poles at the time scales of a
+  // slow actuator (tau_fast, tau_slow), a well-damped fast pair for higher orders, no
+  // zeros; the gains and dead time of the linear start.
+  std::vector<std::vector<double>> GenericStarts(const GlobalStructure& s) {
+    std::vector<std::vector<double>> out;
+    const Layout layout{s};
+    for (const auto& [fast_s, slow_s] :
+         std::vector<std::pair<double, double>>{{3.0, 30.0}, {10.0, 100.0}, {1.0, 10.0}}) {
+      std::vector<double> theta = Start(s, -1);
+      for (int d = 0; d < layout.DynamicsKnots(); ++d) {
+        double* p = theta.data() + 1 + layout.Rules() + d * layout.PerDynamics();
+        int j = 0;
+        for (int q = 0; q < s.num_poles / 2; ++q, j += 2) {
+          const double a = q == 0 ? 1.0 / fast_s : problem_.w_max / 8,
+                       b = q == 0 ? 1.0 / slow_s : problem_.w_max / 8;
+          p[j] = std::log(a + b);
+          p[j + 1] = std::log(a * b);
+        }
+        if (s.num_poles % 2 == 1) p[j++] = std::log(s.num_poles == 1 ? 1.0 / slow_s : 1.0 / fast_s);
+        for (int i = 0; i < s.num_zeros; ++i) p[j + i] = 0.0;
+      }
+      out.push_back(std::move(theta));
+    }
+    return out;
+  }
+
+  size_t folds() const { return folds_.size(); }
+  int fits() const { return fits_; }
+  void CountFit() { ++fits_; }
+
+ private:
+  const Problem& problem_;
+  const Mask& usable_;
+  std::vector<Fold> folds_;
+  std::map<std::tuple<int, int, int>, std::vector<double>> starts_;
+  int fits_ = 0;
+};
+
+// Index of the trial to keep among `trials`: the fewest parameters within
+// kHeldOutTolerance of the best held-out error. -1 if none is usable.
+int Choose(const std::vector<StructureTrial>& trials) {
+  double best = kInf;
+  for (const auto& t : trials) best = std::min(best, t.held_out_rmse_mm);
+  if (!std::isfinite(best)) return -1;
+  int chosen = -1;
+  for (size_t i = 0; i < trials.size(); ++i) {
+    if (!(trials[i].held_out_rmse_mm <= kHeldOutTolerance * best)) continue;
+    if (chosen < 0 || trials[i].structure.Parameters() <
+                          trials[static_cast<size_t>(chosen)].structure.Parameters())
+      chosen = static_cast<int>(i);
+  }
+  return chosen;
+}
+
+// Knots: the visited |levels| when there are few, otherwise quantiles of |u| off rest.
+std::vector<double> InitialKnots(const Problem& problem, const std::vector<double>& levels,
+                                 bool plateau_input, int max_rules) {
+  if (plateau_input && !levels.empty() && levels.size() <= static_cast<size_t>(max_rules))
+    return levels;
+  std::vector<double> active;
+  for (const Series& s : problem.series)
+    for (double u : s.u)
+      if (std::abs(u) > problem.rest_band_V) active.push_back(std::abs(u));
+  if (active.empty()) return {0.0};
+  std::sort(active.begin(), active.end());
+  std::vector<double> knots;
+  const int count = std::max(1, max_rules);
+  for (int i = 0; i < count; ++i) {
+    const double q = count == 1 ? 0.5 : (0.05 + 0.9 * i / (count - 1));
+    const double v = active[static_cast<size_t>(q * static_cast<double>(active.size() - 1))];
+    if (knots.empty() || v - knots.back() > 0.02 * active.back()) knots.push_back(v);
+  }
+  return knots;
+}
+
+// The frozen blend's poles on a grid of z from 0 to 1.25 times the last knot: the largest
+// |pole| (rad/s), or +inf if any is not strictly stable.
+double FastestFrozenPole(const TsModel& model, double top_V) {
+  double fastest = 0.0;
+  for (int i = 0; i <= 200; ++i) {
+    const double z = 1.25 * top_V * i / 200.0;
+    for (const auto& p : Poles(FrozenModelAt(model, z))) {
+      if (!(p.real() < 0.0)) return kInf;
+      fastest = std::max(fastest, std::abs(p));
+    }
+  }
+  return fastest;
+}
+
+// Clipping: the deflection pinned at its extreme for many samples.
+std::string ClippingWarning(const Series& s) {
+  const auto [lo, hi] = std::minmax_element(s.y.begin(), s.y.end());
+  for (const double extreme : {*hi, *lo}) {
+    size_t run = 0, longest = 0;
+    for (double y : s.y) {
+      run = y == extreme ? run + 1 : 0;
+      longest = std::max(longest, run);
+    }
+    if (longest >= 20 && longest * 50 >= s.y.size())
+      return s.source + ": the deflection stays at " + Volts(extreme) + " mm for " +
+             std::to_string(longest) +
+             " samples in a row: clipped by the sensor? Those samples bias the fit";
+  }
+  return "";
+}
+
+void CheckSeries(const Series& s) {
+  for (size_t k = 0; k < s.u.size(); ++k)
+    if (!std::isfinite(s.u[k]) || !std::isfinite(s.y[k]))
+      throw InputError(s.source + ": non-finite value at sample " + std::to_string(k));
+  const auto [ulo, uhi] = std::minmax_element(s.u.begin(), s.u.end());
+  const auto [ylo, yhi] = std::minmax_element(s.y.begin(), s.y.end());
+  if (*ulo == *uhi && s.u.front() == 0.0)
+    throw InputError(s.source + ": the voltage is 0 V throughout: nothing excites the actuator");
+  if (*ylo == *yhi)
+    throw InputError(s.source + ": the deflection is constant (" + Volts(*ylo) +
+                     " mm): nothing to fit");
+}
+
+}  // namespace
+
+int GlobalStructure::Parameters() const {
+  return 1 + static_cast<int>(knots_V.size()) +
+         static_cast<int>(dynamics_knots_V.size()) * (num_poles + num_zeros);
+}
+
+std::string GlobalStructure::Describe() const {
+  std::string text = std::to_string(num_poles) + (num_poles == 1 ? " pole, " : " poles, ") +
+                     std::to_string(num_zeros) + (num_zeros == 1 ? " zero, " : " zeros, ");
+  if (knots_V.size() == 1) return text + "one rule (linear)";
+  text += std::to_string(knots_V.size()) + " rules at " + VoltList(knots_V) + ", ";
+  text += dynamics_knots_V.size() == 1
+              ? std::string("one set of dynamics")
+              : "dynamics at " + VoltList(dynamics_knots_V);
+  return text + ", premise " + PremiseText(premise);
+}
+
+bool GlobalIdentifyOptions::IsValid(std::string* error) const {
+  auto fail = [error](const char* why) {
+    if (error) *error = why;
+    return false;
+  };
+  const bool fixed = num_zeros >= 0 || num_poles >= 0;
+  if (fixed && !(num_zeros >= 0 && num_poles >= 1 && num_zeros < num_poles && num_poles <= 6))
+    return fail("orders: need 0 <= zeros < poles <= 6, or both -1 to choose them");
+  if (max_rules < 1 || max_rules > 16) return fail("max_rules: need 1 to 16");
+  if (!(max_delay_s >= 0.0) || !std::isfinite(max_delay_s))
+    return fail("max_delay_s must be finite and >= 0");
+  if (fixed_delay_s && (!(*fixed_delay_s >= 0.0) || !std::isfinite(*fixed_delay_s)))
+    return fail("the fixed dead time must be finite and >= 0");
+  if (max_iterations < 1) return fail("max_iterations must be >= 1");
+  if (premise && *premise == SchedulingVariable::kVoltage)
+    return fail("premise: |u(t)|, |u(t - T)| or held |u|");
+  for (const auto& [a, b] : excluded_spans_s)
+    if (!std::isfinite(a) || !std::isfinite(b) || !(a < b))
+      return fail("an excluded span needs finite times with start < end");
+  return true;
+}
+
+GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
+                                const GlobalIdentifyOptions& options) {
+  std::string why;
+  if (!options.IsValid(&why)) throw std::invalid_argument("identification options: " + why);
+  if (recordings.empty()) throw InputError("no recordings to identify from");
+  GlobalEstimate result;
+
+  // Data on one grid, checked; levels.
+  Problem problem;
+  problem.max_delay_s = options.max_delay_s;
+  problem.fixed_delay_s = options.fixed_delay_s;
+  problem.max_iterations = options.max_iterations;
+  std::vector<LevelAnalysis> analyses;
+  double longest_s = 0.0;
+  for (size_t r = 0; r < recordings.size(); ++r) {
+    const UniformRecording u = OnUniformGrid(recordings[r]);
+    if (u.resampled)
+      result.notes.push_back(recordings[r].source + ": non-uniform time, resampled to " +
+                             std::to_string(u.dt_s) + " s");
+    if (r == 0) problem.dt_s = u.dt_s;
+    if (std::abs(u.dt_s - problem.dt_s) > 1e-6 * problem.dt_s)
+      throw InputError(recordings[r].source + ": sample period " + std::to_string(u.dt_s) +
+                       " s differs from " + recordings.front().source + "'s " +
+                       std::to_string(problem.dt_s) + " s");
+    problem.series.push_back({recordings[r].source, u.t_s, u.voltage_V, u.deflection_mm});
+    CheckSeries(problem.series.back());
+    if (const std::string w = ClippingWarning(problem.series.back()); !w.empty())
+      result.warnings.push_back(w);
+    longest_s = std::max(longest_s, u.t_s.back() - u.t_s.front());
+    try {
+      analyses.push_back(DetectLevels(u.t_s, u.voltage_V, {}, r));
+    } catch (const InputError& e) {
+      throw InputError(recordings[r].source + ": " + e.what());
+    }
+  }
+  result.dt_s = problem.dt_s;
+  const LevelAnalysis merged = MergeLevels(analyses, 0.0);
+  problem.rest_band_V = merged.rest_band_V;
+  result.plateau_input = merged.plateau_input;
+  for (const VoltageLevel& level : merged.levels) {
+    const double v = std::abs(level.level_V);
+    if (result.levels_V.empty() ||
+        std::none_of(result.levels_V.begin(), result.levels_V.end(),
+                     [&](double w) { return std::abs(w - v) <= merged.tolerance_V; }))
+      result.levels_V.push_back(v);
+  }
+  std::sort(result.levels_V.begin(), result.levels_V.end());
+  problem.w_max = 0.8 * M_PI / problem.dt_s;
+  problem.w_min = 0.5 / std::max(longest_s, 10 * problem.dt_s);
+  if (!result.plateau_input) {
+    double top = 0.0;
+    for (const Series& s : problem.series)
+      for (double u : s.u) top = std::max(top, std::abs(u));
+    problem.resolution_V = std::max(kSchedulingResolution_V, top / 256.0);
+  }
+
+  // Which samples may be fitted.
+  Mask usable;
+  for (const Series& s : problem.series) {
+    std::vector<uint8_t> m(s.u.size(), 1);
+    for (size_t k = 0; k < s.t_s.size(); ++k)
+      for (const auto& [a, b] : options.excluded_spans_s)
+        if (s.t_s[k] >= a && s.t_s[k] < b) m[k] = 0;
+    usable.push_back(std::move(m));
+  }
+  if (Count(usable) < 100) throw InputError("fewer than 100 samples to fit outside the held-out spans");
+
+  // Structure selection.
+  Selector selector(problem, usable);
+  const bool orders_fixed = options.num_poles >= 1;
+  GlobalStructure current;
+  current.num_zeros = orders_fixed ? options.num_zeros : 1;
+  current.num_poles = orders_fixed ? options.num_poles : 2;
+  current.knots_V = InitialKnots(problem, result.levels_V, result.plateau_input, options.max_rules);
+  current.dynamics_knots_V = {current.knots_V.front()};
+  current.premise = options.premise.value_or(SchedulingVariable::kAbsVoltageDelayed);
+  std::vector<double> current_all;  // the current structure fitted on all usable data
+  double current_held_out = kInf;
+  std::vector<std::string> reasons;
+
+  auto run_stage = [&](const std::string& stage, const std::vector<GlobalStructure>& candidates) {
+    std::vector<StructureTrial> trials;
+    std::vector<std::vector<double>> fits(candidates.size());
+    for (size_t i = 0; i < candidates.size(); ++i) {
+      std::vector<std::vector<double>> starts;
+      if (!current_all.empty() && candidates[i].num_poles == current.num_poles &&
+          candidates[i].num_zeros == current.num_zeros)
+        starts.push_back(current_all);
+      trials.push_back(selector.Evaluate(stage, candidates[i], starts, &fits[i]));
+      result.trials.push_back(trials.back());
+    }
+    const int chosen = Choose(trials);
+    if (chosen < 0) {
+      std::string problems;
+      for (const auto& t : trials) problems += "; " + t.structure.Describe() + ": " + t.problem;
+      throw InputError("no structure could be fitted (" + problems.substr(2) + ")");
+    }
+    current = candidates[static_cast<size_t>(chosen)];
+    current_all = fits[static_cast<size_t>(chosen)];
+    current_held_out = trials[static_cast<size_t>(chosen)].held_out_rmse_mm;
+    if (candidates.size() > 1) {
+      std::string text = stage + " (held-out RMSE mm):";
+      for (size_t i = 0; i < trials.size(); ++i) {
+        const GlobalStructure& t = trials[i].structure;
+        text += " " + (stage == "premise" ? std::string(PremiseText(t.premise))
+                                          : std::to_string(t.num_poles) + "p" +
+                                                std::to_string(t.num_zeros) + "z") +
+                " " +
+                (std::isfinite(trials[i].held_out_rmse_mm) ? Volts(trials[i].held_out_rmse_mm)
+                                                           : std::string("failed")) +
+                (static_cast<int>(i) == chosen ? " (chosen)," : ",");
+      }
+      text.pop_back();
+      reasons.push_back(text);
+    }
+  };
+
+  // 1. Premise (only matters with several rules).
+  if (current.knots_V.size() > 1 && !options.premise) {
+    std::vector<GlobalStructure> candidates;
+    for (auto premise : {SchedulingVariable::kAbsVoltageDelayed, SchedulingVariable::kAbsVoltage,
+                         SchedulingVariable::kAbsVoltageHeld}) {
+      GlobalStructure s = current;
+      s.premise = premise;
+      candidates.push_back(s);
+    }
+    run_stage("premise", candidates);
+  }
+  // 2. Orders.
+  if (!orders_fixed) {
+    std::vector<GlobalStructure> candidates;
+    for (const auto& [zeros, poles] :
+         std::vector<std::pair<int, int>>{{0, 1}, {1, 2}, {2, 3}, {3, 4}}) {
+      GlobalStructure s = current;
+      s.num_zeros = zeros;
+      s.num_poles = poles;
+      candidates.push_back(s);
+    }
+    run_stage("orders", candidates);
+  } else if (current_all.empty()) {
+    run_stage("orders", {current});
+  }
+  // 3. Dynamics that change with the voltage: split the knots' range where a change of
+  // dynamics helps most in sample, kept while the held-out error falls by more than 2 %.
+  while (current.dynamics_knots_V.size() < current.knots_V.size()) {
+    const Layout from{current};
+    GlobalStructure best_split;
+    std::vector<double> best_theta;
+    double least = kInf;
+    for (size_t j = 0; j + 1 < current.knots_V.size(); ++j) {
+      GlobalStructure s = current;
+      for (double v : {current.knots_V[j], current.knots_V[j + 1]})
+        if (std::find(s.dynamics_knots_V.begin(), s.dynamics_knots_V.end(), v) ==
+            s.dynamics_knots_V.end())
+          s.dynamics_knots_V.push_back(v);
+      if (s.dynamics_knots_V.size() == current.dynamics_knots_V.size()) continue;
+      std::sort(s.dynamics_knots_V.begin(), s.dynamics_knots_V.end());
+      const Layout to{s};
+      try {
+        FitResult fit = Fit(problem, to, usable, Transfer(from, current_all, to));
+        selector.CountFit();
+        if (fit.ssr < least) {
+          least = fit.ssr;
+          best_split = s;
+          best_theta = fit.theta;
+        }
+      } catch (const InputError&) {
+      }
+    }
+    if (best_theta.empty()) break;
+    std::vector<double> fitted;
+    StructureTrial trial = selector.Evaluate("dynamics", best_split, {best_theta}, &fitted);
+    result.trials.push_back(trial);
+    if (!(trial.held_out_rmse_mm * kHeldOutTolerance < current_held_out)) {
+      reasons.push_back("dynamics: " +
+                        (current.dynamics_knots_V.size() == 1
+                             ? std::string("one set for every voltage")
+                             : "changing at " + VoltList(current.dynamics_knots_V)) +
+                        " (held-out RMSE " + Volts(current_held_out) + " mm; with dynamics at " +
+                        VoltList(best_split.dynamics_knots_V) + ": " +
+                        (std::isfinite(trial.held_out_rmse_mm) ? Volts(trial.held_out_rmse_mm)
+                                                               : std::string("failed")) +
+                        " mm)");
+      break;
+    }
+    current = best_split;
+    current_held_out = trial.held_out_rmse_mm;
+    current_all = fitted;
+  }
+  result.held_out_rmse_mm = current_held_out;
+
+  // Final fit on every usable sample, from fold 0's parameters and from the linear start;
+  // the better one is kept.
+  const Layout layout{current};
+  FitResult final_fit = Fit(problem, layout, usable, current_all);
+  selector.CountFit();
+  try {
+    FitResult fresh = Fit(problem, layout, usable, selector.Start(current, -1));
+    selector.CountFit();
+    if (fresh.ssr < final_fit.ssr) final_fit = std::move(fresh);
+  } catch (const InputError&) {
+  }
+  result.structure = current;
+  result.model = layout.Model(final_fit.theta.data(), problem.rest_band_V);
+  result.model.scheduling_delay_s = final_fit.theta[0];
+  result.fits = selector.fits();
+  const double fastest = FastestFrozenPole(result.model, current.knots_V.back());
+  if (!(fastest < M_PI / problem.dt_s))
+    throw InputError("the fitted model has a pole beyond the Nyquist frequency (" +
+                     Volts(fastest) + " rad/s at a " + Volts(problem.dt_s) +
+                     " s sample period): the data cannot support this structure");
+
+  // Fit figures over every usable sample.
+  {
+    std::vector<double> measured, predicted, input;
+    SimulationOptions sim;
+    for (size_t r = 0; r < problem.series.size(); ++r) {
+      const Series& s = problem.series[r];
+      const std::vector<double> yhat = SimulateUniform(result.model, problem.dt_s, s.u, sim);
+      for (size_t k = 0; k < s.u.size(); ++k)
+        if (usable[r][k]) {
+          measured.push_back(s.y[k]);
+          predicted.push_back(yhat[k]);
+          input.push_back(s.u[k]);
+        }
+    }
+    result.fit = FitFiguresOf(measured, predicted, input, options.correlation_lags);
+  }
+
+  // Intervals (header).
+  const int p = layout.Size();
+  const size_t n = final_fit.samples;
+  result.noise_std_mm = std::sqrt(final_fit.ssr / static_cast<double>(n > static_cast<size_t>(p) ? n - static_cast<size_t>(p) : 1));
+  Eigen::MatrixXd covariance = Eigen::MatrixXd::Zero(p, p);
+  std::vector<bool> determined(static_cast<size_t>(p), true);
+  {
+    Eigen::VectorXd r0(static_cast<Eigen::Index>(n)), r1(static_cast<Eigen::Index>(n));
+    Eigen::MatrixXd jac(static_cast<Eigen::Index>(n), p);
+    OutputError(problem, result.model, usable, r0.data());
+    for (int j = 0; j < p; ++j) {
+      if (j == 0 && options.fixed_delay_s) {
+        jac.col(j).setZero();
+        continue;
+      }
+      std::vector<double> theta = final_fit.theta;
+      const double h = 1e-6 * std::max(1.0, std::abs(theta[static_cast<size_t>(j)]));
+      theta[static_cast<size_t>(j)] += h;
+      OutputError(problem, layout.Model(theta.data(), problem.rest_band_V), usable, r1.data());
+      jac.col(j) = -(r1 - r0) / h;
+    }
+    const Eigen::MatrixXd jtj = jac.transpose() * jac;
+    const Eigen::VectorXd scale = jtj.diagonal().cwiseMax(1e-300).cwiseSqrt().cwiseInverse();
+    Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(scale.asDiagonal() * jtj *
+                                                         scale.asDiagonal());
+    const Eigen::VectorXd lambda = eigen.eigenvalues();
+    const double top = lambda.maxCoeff();
+    Eigen::MatrixXd inverse = Eigen::MatrixXd::Zero(p, p);
+    for (int k = 0; k < p; ++k) {
+      const Eigen::VectorXd v = eigen.eigenvectors().col(k);
+      if (lambda(k) > 1e-9 * top) {
+        inverse += v * v.transpose() / lambda(k);
+        continue;
+      }
+      for (int j = 0; j < p; ++j)
+        if (std::abs(v(j)) > 0.3 && !(j == 0 && options.fixed_delay_s))
+          determined[static_cast<size_t>(j)] = false;
+    }
+    covariance = result.noise_std_mm * result.noise_std_mm * scale.asDiagonal() * inverse *
+                 scale.asDiagonal();
+  }
+  auto estimate = [&](int j, const std::string& name) {
+    ParameterEstimate e{name, final_fit.theta[static_cast<size_t>(j)], 0.0};
+    e.half_width_95 = 1.96 * std::sqrt(std::max(0.0, covariance(j, j)));
+    return e;
+  };
+  result.delay_s = estimate(0, "delay_s");
+  for (int j = 0; j < p; ++j)
+    if (!determined[static_cast<size_t>(j)]) result.undetermined.push_back(layout.ParameterName(j));
+  for (int r = 0; r < layout.Rules(); ++r) {
+    RuleReport report;
+    report.knot_V = current.knots_V[static_cast<size_t>(r)];
+    report.dc_gain = estimate(1 + r, "dc_gain");
+    report.poles = Poles(result.model.rules[static_cast<size_t>(r)].tf);
+    result.rules.push_back(std::move(report));
+  }
+
+  // What the data cannot decide, in words.
+  result.reason = "chosen on held-out data (" +
+                  std::string(problem.series.size() >= 2 ? "leave one recording out"
+                                                         : "first and second half in turn") +
+                  "): " + current.Describe();
+  for (const std::string& r : reasons) result.reason += "; " + r;
+  if (!result.undetermined.empty()) {
+    std::string names;
+    for (const auto& name : result.undetermined) names += (names.empty() ? "" : ", ") + name;
+    result.warnings.push_back("the data do not determine: " + names);
+  }
+  if (result.delay_s.half_width_95 > result.delay_s.value && !options.fixed_delay_s)
+    result.warnings.push_back("the dead time is not determined: " + Volts(result.delay_s.value) +
+                              " +- " + Volts(result.delay_s.half_width_95) + " s");
+  if (result.plateau_input && !result.levels_V.empty()) {
+    if (result.levels_V.size() == 1)
+      result.warnings.push_back("one voltage level (" + VoltList(result.levels_V) +
+                                "): the model is linear, and every other voltage is "
+                                "extrapolated from it");
+    const auto& k = current.knots_V;
+    for (size_t i = 0; i + 1 < k.size(); ++i) {
+      const bool seen = std::any_of(result.levels_V.begin(), result.levels_V.end(), [&](double v) {
+        return v > k[i] + merged.tolerance_V && v < k[i + 1] - merged.tolerance_V;
+      });
+      if (!seen)
+        result.warnings.push_back("between " + Volts(k[i]) + " and " + Volts(k[i + 1]) +
+                                  " V no level was visited: where the rules hand over there is "
+                                  "not in the data (the model interpolates linearly)");
+    }
+    std::string levels_text = "levels visited: " + VoltList(result.levels_V);
+    if (result.levels_V.front() > 0.25 * result.levels_V.back())
+      levels_text += "; below " + Volts(result.levels_V.front()) + " V the model holds the " +
+                     Volts(result.levels_V.front()) + " V behaviour unverified";
+    result.notes.push_back(levels_text);
+    // Excitation: time spent at each level against the slowest time constant.
+    double slowest_s = 0.0;
+    for (const auto& rule : result.model.rules)
+      for (const auto& pole : Poles(rule.tf)) slowest_s = std::max(slowest_s, -1.0 / pole.real());
+    for (const VoltageLevel& level : merged.levels) {
+      double held_s = 0.0;
+      for (const Plateau& plateau : merged.plateaus)
+        if (plateau.level >= 0 &&
+            std::abs(merged.levels[static_cast<size_t>(plateau.level)].level_V - level.level_V) <
+                1e-12)
+          held_s += plateau.t_end_s - plateau.t_start_s;
+      if (held_s < slowest_s)
+        result.warnings.push_back("level " + Volts(level.level_V) + " V is held for " +
+                                  Volts(held_s) + " s in all, less than the slowest time constant (" +
+                                  Volts(slowest_s) + " s): its gain there is extrapolated");
+    }
+  }
+  return result;
+}
+
+}  // namespace flexid::model

@@ -1,0 +1,96 @@
+// Global T-S identification (model/identify_global.h): what it guarantees whatever the
+// data, and its one-line errors. Its accuracy on plants flexid did not write is measured
+// by ../shared/data/independent/score (README, "Identification").
+#include "model/identify_global.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+
+#include "model/errors.h"
+#include "model/simulate.h"
+#include "gaussian.h"
+
+namespace flexid::model {
+namespace {
+
+// A 2-4 V staircase through a plant whose gain grows with the voltage (1 mm/V at 2 V,
+// 1.5 mm/V at 4 V), 0.2 s samples, Gaussian noise of 0.01 mm.
+Recording Staircase(const std::string& name, unsigned seed) {
+  const TransferFunction slow{{0.02, 0.01}, {1.0, 0.3, 0.01}, 0.6};  // DC gain 1 mm/V
+  TransferFunction fast = slow;
+  for (double& c : fast.num) c *= 1.5;
+  TsModel plant = MakeTsModelOnLevels({{2.0, slow, {}}, {4.0, fast, {}}},
+                                      SchedulingVariable::kAbsVoltageDelayed);
+  plant.scheduling_delay_s = 0.6;
+  Recording rec;
+  rec.source = name;
+  for (int k = 0; k < 1500; ++k) {
+    rec.t_s.push_back(0.2 * k);
+    const int block = k / 150;
+    rec.voltage_V.push_back(block % 3 == 0 ? 0.0 : block % 3 == 1 ? 2.0 : 4.0);
+  }
+  rec.deflection_mm = SimulateUniform(plant, 0.2, rec.voltage_V);
+  testing::Gaussian noise(seed);
+  for (double& y : rec.deflection_mm) y += 0.01 * noise();
+  return rec;
+}
+
+TEST(IdentifyGlobal, ReturnsAStableModelWithFiniteIntervalsAndItsReason) {
+  const GlobalEstimate e = IdentifyGlobalTs({Staircase("a.csv", 1), Staircase("b.csv", 2)});
+  EXPECT_EQ(e.levels_V, (std::vector<double>{2.0, 4.0}));
+  ASSERT_FALSE(e.model.rules.empty());
+  // Every frozen blend is stable, at, between and beyond the levels.
+  for (double z = 0.0; z <= 8.0; z += 0.25)
+    EXPECT_TRUE(IsStable(FrozenModelAt(e.model, z))) << "z = " << z;
+  EXPECT_TRUE(std::isfinite(e.delay_s.half_width_95));
+  for (const RuleReport& rule : e.rules) EXPECT_TRUE(std::isfinite(rule.dc_gain.half_width_95));
+  EXPECT_TRUE(std::isfinite(e.held_out_rmse_mm));
+  EXPECT_NE(e.reason.find("held-out"), std::string::npos) << e.reason;
+  // The fit reaches the noise (0.01 mm) within a factor of 2 on this plant.
+  EXPECT_LT(e.fit.rmse_mm, 0.02);
+  // The gain grows with the voltage, as in the plant.
+  EXPECT_NEAR(DcGain(FrozenModelAt(e.model, 2.0)), 1.0, 0.05);
+  EXPECT_NEAR(DcGain(FrozenModelAt(e.model, 4.0)), 1.5, 0.05);
+}
+
+TEST(IdentifyGlobal, SaysWhatTheDataDoNotShow) {
+  Recording one = Staircase("one-level.csv", 3);
+  for (double& u : one.voltage_V) u = u > 0.0 ? 2.0 : 0.0;
+  const GlobalEstimate e = IdentifyGlobalTs({one});
+  ASSERT_EQ(e.model.rules.size(), 1u);
+  bool said = false;
+  for (const std::string& w : e.warnings) said = said || w.find("one voltage level") == 0;
+  EXPECT_TRUE(said);
+}
+
+TEST(IdentifyGlobal, BadRecordingsGetOneLineNamingThem) {
+  Recording flat = Staircase("flat.csv", 4);
+  std::fill(flat.deflection_mm.begin(), flat.deflection_mm.end(), 1.0);
+  try {
+    IdentifyGlobalTs({flat});
+    FAIL() << "a constant deflection was accepted";
+  } catch (const InputError& e) {
+    EXPECT_EQ(std::string(e.what()).rfind("flat.csv: the deflection is constant", 0), 0u)
+        << e.what();
+  }
+  Recording nan = Staircase("nan.csv", 5);
+  nan.deflection_mm[700] = std::numeric_limits<double>::quiet_NaN();
+  try {
+    IdentifyGlobalTs({nan});
+    FAIL() << "NaN was accepted";
+  } catch (const InputError& e) {
+    EXPECT_EQ(std::string(e.what()), "nan.csv: non-finite value at sample 700");
+  }
+  Recording rest = Staircase("rest.csv", 6);
+  std::fill(rest.voltage_V.begin(), rest.voltage_V.end(), 0.0);
+  EXPECT_THROW(IdentifyGlobalTs({rest}), InputError);
+  GlobalIdentifyOptions bad;
+  bad.num_zeros = 3;
+  bad.num_poles = 2;
+  EXPECT_THROW(IdentifyGlobalTs({Staircase("a.csv", 7)}, bad), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace flexid::model
