@@ -507,7 +507,6 @@ class Selector {
     return out;
   }
 
-  size_t folds() const { return folds_.size(); }
   int fits() const { return fits_; }
   void CountFit() { ++fits_; }
 
@@ -654,16 +653,10 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
   problem.max_iterations = options.max_iterations;
   std::vector<LevelAnalysis> analyses;
   double longest_s = 0.0;
+  const std::vector<UniformRecording> uniform = OnCommonUniformGrid(recordings, &result.notes);
+  problem.dt_s = uniform.front().dt_s;
   for (size_t r = 0; r < recordings.size(); ++r) {
-    const UniformRecording u = OnUniformGrid(recordings[r]);
-    if (u.resampled)
-      result.notes.push_back(recordings[r].source + ": non-uniform time, resampled to " +
-                             std::to_string(u.dt_s) + " s");
-    if (r == 0) problem.dt_s = u.dt_s;
-    if (std::abs(u.dt_s - problem.dt_s) > 1e-6 * problem.dt_s)
-      throw InputError(recordings[r].source + ": sample period " + std::to_string(u.dt_s) +
-                       " s differs from " + recordings.front().source + "'s " +
-                       std::to_string(problem.dt_s) + " s");
+    const UniformRecording& u = uniform[r];
     problem.series.push_back({recordings[r].source, u.t_s, u.voltage_V, u.deflection_mm});
     CheckSeries(problem.series.back());
     if (const std::string w = ClippingWarning(problem.series.back()); !w.empty())

@@ -36,17 +36,13 @@
 // held-out error the one with fewest parameters wins. Fixed orders or premise skip their
 // stage.
 //
-// Status (work in progress, `flexid identify --method global`): on the independent
-// simulator's 1-8 V staircase the selected model fits to the noise in sample and
-// predicts held-out blocks at 1.6 times the noise, but the dead time trades off against
-// the zero (9.7 s found, 3.72 s true) and the selection takes about 30 s for 20,000
-// samples. The dead time needs a search that converges (a scan of fixed dead times from
-// the linear start does not: its fits stall), and the fits need analytic sensitivities
-// to be fast.
-//
-// Intervals: sigma^2 (J^T J)^{-1} with Jacobi scaling at the final fit. Directions of
-// J^T J that the data do not determine are found by eigen-decomposition; the parameters
-// with weight in them are named as not determined, and no half-width is infinite.
+// Status (work in progress, `flexid identify --method global`; figures in the README's
+// "Identification"): on the independent simulator's multilevel recordings the selected
+// model predicts fresh data within the noise, but on its staircases the fit can stall in a
+// local minimum and the dead time trades off against a zero; the selection takes about
+// 30 s for 20,000 samples. The dead time needs a search that converges, and the fits need
+// analytic sensitivities to be fast.
+
 #pragma once
 
 #include <complex>

@@ -106,18 +106,10 @@ TsEstimate IdentifyTsModel(const std::vector<Recording>& recordings,
   if (!options.IsValid(&why)) throw std::invalid_argument("identification options: " + why);
   if (recordings.empty()) throw InputError("no recordings to identify from");
   TsEstimate result;
-  std::vector<UniformRecording> uniform;
+  const std::vector<UniformRecording> uniform = OnCommonUniformGrid(recordings, &result.notes);
   std::vector<LevelAnalysis> analyses;
   for (size_t r = 0; r < recordings.size(); ++r) {
-    uniform.push_back(OnUniformGrid(recordings[r]));
-    const UniformRecording& u = uniform.back();
-    if (u.resampled)
-      result.notes.push_back(recordings[r].source + ": non-uniform time, resampled to " +
-                             std::to_string(u.dt_s) + " s");
-    if (std::abs(u.dt_s - uniform.front().dt_s) > 1e-6 * uniform.front().dt_s)
-      throw InputError(recordings[r].source + ": sample period " + std::to_string(u.dt_s) +
-                       " s differs from " + recordings.front().source + "'s " +
-                       std::to_string(uniform.front().dt_s) + " s");
+    const UniformRecording& u = uniform[r];
     try {
       analyses.push_back(DetectLevels(u.t_s, u.voltage_V, options.levels, r));
     } catch (const InputError& e) {

@@ -468,4 +468,21 @@ UniformRecording OnUniformGrid(const Recording& rec) {
   return out;
 }
 
+std::vector<UniformRecording> OnCommonUniformGrid(const std::vector<Recording>& recordings,
+                                                  std::vector<std::string>* notes) {
+  std::vector<UniformRecording> out;
+  for (const Recording& rec : recordings) {
+    out.push_back(OnUniformGrid(rec));
+    const UniformRecording& u = out.back();
+    if (u.resampled)
+      notes->push_back(rec.source + ": non-uniform time, resampled to " + std::to_string(u.dt_s) +
+                       " s");
+    if (std::abs(u.dt_s - out.front().dt_s) > 1e-6 * out.front().dt_s)
+      throw InputError(rec.source + ": sample period " + std::to_string(u.dt_s) +
+                       " s differs from " + recordings.front().source + "'s " +
+                       std::to_string(out.front().dt_s) + " s");
+  }
+  return out;
+}
+
 }  // namespace flexid::model

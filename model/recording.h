@@ -69,4 +69,9 @@ struct UniformRecording {
 // Throws InputError (named by source) with fewer than 2 rows or without deflection.
 UniformRecording OnUniformGrid(const Recording& rec);
 
+// Every recording on a uniform grid, all with the first one's sample period (InputError
+// naming the recording otherwise); a note per resampled recording is appended to *notes.
+std::vector<UniformRecording> OnCommonUniformGrid(const std::vector<Recording>& recordings,
+                                                  std::vector<std::string>* notes);
+
 }  // namespace flexid::model
