@@ -24,6 +24,8 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 // Candidates within this factor of the best held-out error count as equally good; the
 // one with fewest parameters wins.
 constexpr double kHeldOutTolerance = 1.02;
+// A fold starts from the all-data fit, close to its own optimum: few iterations suffice.
+constexpr int kFoldIterations = 20;
 
 std::string Volts(double v) {
   char text[32];
@@ -122,13 +124,18 @@ struct Layout {
   }
 
   TransferFunction Rule(const double* theta, int r) const {
-    const std::vector<double> d = DynamicsAt(theta, s.knots_V[static_cast<size_t>(r)]);
+    return RuleAt(theta, s.knots_V[static_cast<size_t>(r)], theta[1 + r]);
+  }
+
+  // The dynamics in force at voltage v with DC gain `gain`.
+  TransferFunction RuleAt(const double* theta, double v, double gain) const {
+    const std::vector<double> d = DynamicsAt(theta, v);
     std::vector<double> den = {1.0};
     int j = 0;
     for (int q = 0; q < s.num_poles / 2; ++q, j += 2)
       den = MultiplyPolynomials(den, {1.0, d[static_cast<size_t>(j)], d[static_cast<size_t>(j + 1)]});
     if (s.num_poles % 2 == 1) den = MultiplyPolynomials(den, {1.0, d[static_cast<size_t>(j++)]});
-    const double scale = theta[1 + r] * den.back();
+    const double scale = gain * den.back();
     std::vector<double> num(static_cast<size_t>(s.num_zeros) + 1);
     num.back() = scale;
     for (int i = 1; i <= s.num_zeros; ++i)
@@ -231,6 +238,24 @@ std::vector<double> RuleParameters(const TransferFunction& tf, const Layout& lay
   return p;
 }
 
+// theta for `to` (one pole and one zero more than `from`, same knots) that predicts
+// exactly what `from` predicts: the dynamics at every dynamics knot gain a pole and a
+// zero at the same fast frequency, which cancel. The higher order starts where the lower
+// one ended and can only improve on it in sample.
+std::vector<double> RaiseOrder(const Layout& from, const std::vector<double>& theta,
+                               const Layout& to, const Problem& problem) {
+  std::vector<double> out(theta.begin(), theta.begin() + 1 + from.Rules());
+  const double a = problem.w_max / 4;
+  for (double v : to.s.dynamics_knots_V) {
+    TransferFunction tf = from.RuleAt(theta.data(), v, 1.0);
+    tf.num = MultiplyPolynomials(tf.num, {1.0 / a, 1.0});
+    tf.den = MultiplyPolynomials(tf.den, {1.0, a});
+    const std::vector<double> p = RuleParameters(tf, to, problem);
+    out.insert(out.end(), p.begin() + 1, p.end());
+  }
+  return out;
+}
+
 // ---------------------------------------------------------------------------------------
 // Simulation and the output-error fit
 // ---------------------------------------------------------------------------------------
@@ -259,6 +284,64 @@ double OutputError(const Problem& problem, const TsModel& model, const Mask& mas
     }
   }
   return ssr;
+}
+
+// Plausibility under switching (header): from steady state at each level (rest included),
+// a jump to every other level. When the rules' dynamics differ, a T-S model can swing far
+// outside anything its frozen models would do as the premise jumps across rules, although
+// every frozen blend is stable, and data that step only between neighbouring levels never
+// show it. The swing beyond the start and end values may not exceed what the frozen model
+// at the new level does on the same step (a frozen model may overshoot, as back-relaxation
+// does) plus a quarter of the step and three noise deviations. Returns "" or the worst
+// jump in words.
+std::string SwitchingProblem(const TsModel& model, const Problem& problem,
+                             std::vector<double> levels_V, double noise_mm) {
+  levels_V.push_back(0.0);
+  std::sort(levels_V.begin(), levels_V.end());
+  levels_V.erase(std::unique(levels_V.begin(), levels_V.end()), levels_V.end());
+  if (levels_V.size() < 2 || model.rules.size() < 2) return "";
+  std::vector<TransferFunction> frozen;
+  double slowest_s = 0.0;
+  for (double v : levels_V) {
+    frozen.push_back(FrozenModelAt(model, v));
+    for (const auto& pole : Poles(frozen.back()))
+      if (pole.real() < 0.0) slowest_s = std::max(slowest_s, -1.0 / pole.real());
+  }
+  const size_t n = static_cast<size_t>(
+      std::clamp(std::ceil(5.0 * slowest_s / problem.dt_s), 100.0, 20000.0));
+  SimulationOptions options;
+  options.start_in_steady_state = true;
+  options.scheduling_resolution_V = problem.resolution_V;
+  auto excursion = [](const std::vector<double>& y, double from, double to) {
+    const auto [lo, hi] = std::minmax_element(y.begin(), y.end());
+    return std::max({0.0, *hi - std::max(from, to), std::min(from, to) - *lo});
+  };
+  double worst = 0.0;
+  std::string text;
+  for (size_t i = 0; i < levels_V.size(); ++i)
+    for (size_t j = 0; j < levels_V.size(); ++j) {
+      if (i == j) continue;
+      const double a = levels_V[i], b = levels_V[j];
+      std::vector<double> u(n, b);
+      u[0] = a;
+      const double ya = DcGain(frozen[i]) * a, yb = DcGain(frozen[j]) * b;
+      const std::vector<double> y = SimulateUniform(model, problem.dt_s, u, options);
+      TsModel alone = MakeTsModelOnLevels({{b, frozen[j], {}}});
+      const std::vector<double> yf = SimulateUniform(alone, problem.dt_s, u, options);
+      const double gb = DcGain(frozen[j]);
+      const double step = std::abs(yb - ya);
+      const double allowed =
+          (excursion(yf, gb * a, gb * b) / std::max(std::abs(gb * (b - a)), 1e-12) + 0.25) * step +
+          3.0 * noise_mm;
+      const double swing = excursion(y, ya, yb);
+      if (swing > allowed && swing - allowed > worst) {
+        worst = swing - allowed;
+        text = "a jump from " + Volts(a) + " to " + Volts(b) + " V swings " + Volts(swing) +
+               " mm beyond its start and end values (" + Volts(ya) + " and " + Volts(yb) +
+               " mm), where its frozen models allow " + Volts(allowed) + " mm";
+      }
+    }
+  return text;
 }
 
 struct OutputErrorCost {
@@ -316,7 +399,7 @@ FitResult Fit(const Problem& problem, const Layout& layout, const Mask& mask,
   options.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
   options.linear_solver_type = ceres::DENSE_QR;
   options.max_num_iterations = problem.max_iterations;
-  options.function_tolerance = 1e-9;
+  options.function_tolerance = 1e-7;
   options.parameter_tolerance = 1e-10;
   options.num_threads = 1;
   options.logging_type = ceres::SILENT;
@@ -396,7 +479,9 @@ std::vector<DataSegment> MaskedSegments(const Problem& problem, const Mask& mask
 
 class Selector {
  public:
-  Selector(const Problem& problem, const Mask& usable) : problem_(problem), usable_(usable) {
+  // levels_V: the |voltages| between which a model must switch plausibly.
+  Selector(const Problem& problem, const Mask& usable, std::vector<double> levels_V)
+      : problem_(problem), usable_(usable), levels_V_(std::move(levels_V)) {
     folds_ = MakeFolds(problem, usable);
   }
 
@@ -434,8 +519,9 @@ class Selector {
     return theta;
   }
 
-  // Fits a structure on all usable data from each given start (the linear start is
-  // always tried too) and keeps the best; then fits each fold from that solution and
+  // Fits a structure on all usable data from each given start (when none is given, from
+  // the linear start and generic starts) and keeps the best that
+  // switches plausibly between levels (SwitchingProblem); then fits each fold from that solution and
   // measures the held-out error. Starting the folds from the all-data fit keeps them in
   // the same basin of the cost, so that folds compare structures rather than local
   // minima. `all` receives the all-data parameters.
@@ -447,13 +533,22 @@ class Selector {
     try {
       FitResult best;
       std::vector<std::vector<double>> tries = starts;
-      tries.push_back(Start(s, -1));
-      for (auto& generic : GenericStarts(s)) tries.push_back(std::move(generic));
+      if (starts.empty()) {
+        tries.push_back(Start(s, -1));
+        for (auto& generic : GenericStarts(s)) tries.push_back(std::move(generic));
+      }
       for (auto& start : tries) {
         try {
           FitResult fit = Fit(problem_, layout, usable_, std::move(start));
           ++fits_;
-          if (fit.ssr < best.ssr) best = std::move(fit);
+          if (!(fit.ssr < best.ssr)) continue;
+          const double noise_mm = std::sqrt(fit.ssr / static_cast<double>(fit.samples));
+          const std::string swing = SwitchingProblem(
+              layout.Model(fit.theta.data(), problem_.rest_band_V), problem_, levels_V_, noise_mm);
+          if (swing.empty())
+            best = std::move(fit);
+          else
+            trial.problem = swing;
         } catch (const InputError& e) {
           trial.problem = e.what();
         }
@@ -463,8 +558,10 @@ class Selector {
       *all = best.theta;
       double sse = 0.0;
       size_t n = 0;
+      Problem fold_problem = problem_;
+      fold_problem.max_iterations = std::min(problem_.max_iterations, kFoldIterations);
       for (size_t f = 0; f < folds_.size(); ++f) {
-        const FitResult fit = Fit(problem_, layout, folds_[f].fit, best.theta);
+        const FitResult fit = Fit(fold_problem, layout, folds_[f].fit, best.theta);
         ++fits_;
         const double e =
             OutputError(problem_, layout.Model(fit.theta.data(), problem_.rest_band_V),
@@ -513,6 +610,7 @@ class Selector {
  private:
   const Problem& problem_;
   const Mask& usable_;
+  std::vector<double> levels_V_;
   std::vector<Fold> folds_;
   std::map<std::tuple<int, int, int>, std::vector<double>> starts_;
   int fits_ = 0;
@@ -700,28 +798,34 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
   }
   if (Count(usable) < 100) throw InputError("fewer than 100 samples to fit outside the held-out spans");
 
-  // Structure selection.
-  Selector selector(problem, usable);
+  // Structure selection: a pilot (two poles and one zero unless the orders are given, one
+  // set of dynamics, the premise the seed's plant uses), then dynamics that change with
+  // the voltage, then the orders at those knots, then the premise at the chosen structure.
+  // The premise and the orders are compared where the model is already close to the data:
+  // compared on the pilot, whose error is dominated by what it cannot represent, they
+  // would be chosen by noise.
+  std::vector<double> switch_levels = result.levels_V;
+  const std::vector<double> knots =
+      InitialKnots(problem, result.levels_V, result.plateau_input, options.max_rules);
+  switch_levels.insert(switch_levels.end(), knots.begin(), knots.end());
+  Selector selector(problem, usable, switch_levels);
   const bool orders_fixed = options.num_poles >= 1;
   GlobalStructure current;
   current.num_zeros = orders_fixed ? options.num_zeros : 1;
   current.num_poles = orders_fixed ? options.num_poles : 2;
-  current.knots_V = InitialKnots(problem, result.levels_V, result.plateau_input, options.max_rules);
+  current.knots_V = knots;
   current.dynamics_knots_V = {current.knots_V.front()};
   current.premise = options.premise.value_or(SchedulingVariable::kAbsVoltageDelayed);
   std::vector<double> current_all;  // the current structure fitted on all usable data
   double current_held_out = kInf;
   std::vector<std::string> reasons;
 
-  auto run_stage = [&](const std::string& stage, const std::vector<GlobalStructure>& candidates) {
+  auto run_stage = [&](const std::string& stage, const std::vector<GlobalStructure>& candidates,
+                       const std::vector<std::vector<std::vector<double>>>& starts) {
     std::vector<StructureTrial> trials;
     std::vector<std::vector<double>> fits(candidates.size());
     for (size_t i = 0; i < candidates.size(); ++i) {
-      std::vector<std::vector<double>> starts;
-      if (!current_all.empty() && candidates[i].num_poles == current.num_poles &&
-          candidates[i].num_zeros == current.num_zeros)
-        starts.push_back(current_all);
-      trials.push_back(selector.Evaluate(stage, candidates[i], starts, &fits[i]));
+      trials.push_back(selector.Evaluate(stage, candidates[i], starts[i], &fits[i]));
       result.trials.push_back(trials.back());
     }
     const int chosen = Choose(trials);
@@ -750,32 +854,9 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
     }
   };
 
-  // 1. Premise (only matters with several rules).
-  if (current.knots_V.size() > 1 && !options.premise) {
-    std::vector<GlobalStructure> candidates;
-    for (auto premise : {SchedulingVariable::kAbsVoltageDelayed, SchedulingVariable::kAbsVoltage,
-                         SchedulingVariable::kAbsVoltageHeld}) {
-      GlobalStructure s = current;
-      s.premise = premise;
-      candidates.push_back(s);
-    }
-    run_stage("premise", candidates);
-  }
-  // 2. Orders.
-  if (!orders_fixed) {
-    std::vector<GlobalStructure> candidates;
-    for (const auto& [zeros, poles] :
-         std::vector<std::pair<int, int>>{{0, 1}, {1, 2}, {2, 3}, {3, 4}}) {
-      GlobalStructure s = current;
-      s.num_zeros = zeros;
-      s.num_poles = poles;
-      candidates.push_back(s);
-    }
-    run_stage("orders", candidates);
-  } else if (current_all.empty()) {
-    run_stage("orders", {current});
-  }
-  // 3. Dynamics that change with the voltage: split the knots' range where a change of
+  // 1. The pilot.
+  run_stage("pilot", {current}, {{}});
+  // 2. Dynamics that change with the voltage: split the knots' range where a change of
   // dynamics helps most in sample, kept while the held-out error falls by more than 2 %.
   while (current.dynamics_knots_V.size() < current.knots_V.size()) {
     const Layout from{current};
@@ -822,19 +903,100 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
     current_held_out = trial.held_out_rmse_mm;
     current_all = fitted;
   }
+  // The dead time trades off against a zero, and a fit started at the wrong dead time
+  // settles in that basin. Its profile is scanned once the model is close to the data:
+  // the current structure refitted at each dead time on a grid with the rest free, and
+  // the best point refitted with the dead time free.
+  if (!options.fixed_delay_s) {
+    Problem fixed = problem;
+    const Layout layout{current};
+    FitResult best;
+    auto try_delay = [&](double delay_s, std::vector<double> start, int iterations) {
+      fixed.fixed_delay_s = std::clamp(delay_s, 0.0, problem.max_delay_s);
+      fixed.max_iterations = std::min(problem.max_iterations, iterations);
+      start[0] = *fixed.fixed_delay_s;
+      try {
+        FitResult fit = Fit(fixed, layout, usable, std::move(start));
+        selector.CountFit();
+        if (fit.ssr < best.ssr) best = std::move(fit);
+      } catch (const InputError&) {
+      }
+    };
+    // Every second, then every sample within a second of the best. Each point lies half a
+    // sample off the sample grid: the premise's delay is a whole number of samples and
+    // jumps at every multiple of the sample period, so that the dead time's derivative
+    // exists only between them and a free fit cannot cross them reliably.
+    const int coarse = std::clamp(static_cast<int>(std::ceil(problem.max_delay_s)), 1, 30);
+    for (int i = 0; i <= coarse; ++i)
+      try_delay(problem.max_delay_s * i / coarse + 0.5 * problem.dt_s, current_all, 10);
+    if (!best.theta.empty()) {
+      const std::vector<double> centre = best.theta;
+      const int fine = static_cast<int>(std::ceil(problem.max_delay_s / coarse / problem.dt_s));
+      for (int m = -fine; m <= fine; ++m)
+        if (m != 0) try_delay(centre[0] + m * problem.dt_s, centre, 5);
+    }
+    if (!best.theta.empty()) {
+      std::vector<double> fitted;
+      StructureTrial trial = selector.Evaluate("dead time", current, {best.theta}, &fitted);
+      result.trials.push_back(trial);
+      if (trial.held_out_rmse_mm < current_held_out) {
+        reasons.push_back("dead time: scanned from 0 to " + Volts(problem.max_delay_s) +
+                          " s, best near " + Volts(best.theta[0]) + " s (held-out RMSE " +
+                          Volts(trial.held_out_rmse_mm) + " mm, " + Volts(current_held_out) +
+                          " mm before)");
+        current_all = fitted;
+        current_held_out = trial.held_out_rmse_mm;
+      }
+    }
+  }
+  // 3. Orders at the chosen knots; higher orders also start from the current fit with a
+  // cancelling pole and zero added (RaiseOrder), so they start where it ended.
+  if (!orders_fixed) {
+    std::vector<GlobalStructure> candidates;
+    std::vector<std::vector<std::vector<double>>> starts;
+    for (const auto& [zeros, poles] :
+         std::vector<std::pair<int, int>>{{0, 1}, {1, 2}, {2, 3}, {3, 4}}) {
+      GlobalStructure s = current;
+      s.num_zeros = zeros;
+      s.num_poles = poles;
+      candidates.push_back(s);
+      starts.emplace_back();
+      if (poles < current.num_poles || zeros - poles != current.num_zeros - current.num_poles)
+        continue;
+      GlobalStructure step = current;
+      std::vector<double> theta = current_all;
+      while (step.num_poles < poles) {
+        GlobalStructure next = step;
+        ++next.num_poles;
+        ++next.num_zeros;
+        theta = RaiseOrder(Layout{step}, theta, Layout{next}, problem);
+        step = next;
+      }
+      starts.back().push_back(std::move(theta));
+    }
+    run_stage("orders", candidates, starts);
+  }
+  // 4. Premise, at the chosen structure (only matters with several rules).
+  if (current.knots_V.size() > 1 && !options.premise) {
+    std::vector<GlobalStructure> candidates;
+    for (auto premise : {SchedulingVariable::kAbsVoltageDelayed, SchedulingVariable::kAbsVoltage,
+                         SchedulingVariable::kAbsVoltageHeld}) {
+      GlobalStructure s = current;
+      s.premise = premise;
+      candidates.push_back(s);
+    }
+    run_stage("premise", candidates,
+              std::vector<std::vector<std::vector<double>>>(candidates.size(), {current_all}));
+  }
   result.held_out_rmse_mm = current_held_out;
 
-  // Final fit on every usable sample, from fold 0's parameters and from the linear start;
-  // the better one is kept.
+  // The chosen structure's fit on every usable sample (made during selection).
   const Layout layout{current};
-  FitResult final_fit = Fit(problem, layout, usable, current_all);
-  selector.CountFit();
-  try {
-    FitResult fresh = Fit(problem, layout, usable, selector.Start(current, -1));
-    selector.CountFit();
-    if (fresh.ssr < final_fit.ssr) final_fit = std::move(fresh);
-  } catch (const InputError&) {
-  }
+  FitResult final_fit;
+  final_fit.theta = current_all;
+  final_fit.samples = Count(usable);
+  final_fit.ssr =
+      OutputError(problem, layout.Model(current_all.data(), problem.rest_band_V), usable, nullptr);
   result.structure = current;
   result.model = layout.Model(final_fit.theta.data(), problem.rest_band_V);
   result.model.scheduling_delay_s = final_fit.theta[0];
@@ -878,7 +1040,12 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
         continue;
       }
       std::vector<double> theta = final_fit.theta;
-      const double h = 1e-6 * std::max(1.0, std::abs(theta[static_cast<size_t>(j)]));
+      double h = 1e-6 * std::max(1.0, std::abs(theta[static_cast<size_t>(j)]));
+      // The premise's delay in samples jumps at multiples of the sample period: the
+      // dead time's difference stays on the side where it does not.
+      auto premise_samples = [&](double t_s) { return std::ceil(t_s / problem.dt_s - 1e-9); };
+      if (j == 0 && theta[0] >= h && premise_samples(theta[0] + h) != premise_samples(theta[0]))
+        h = -h;
       theta[static_cast<size_t>(j)] += h;
       OutputError(problem, layout.Model(theta.data(), problem.rest_band_V), usable, r1.data());
       jac.col(j) = -(r1 - r0) / h;
@@ -943,10 +1110,15 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
       const bool seen = std::any_of(result.levels_V.begin(), result.levels_V.end(), [&](double v) {
         return v > k[i] + merged.tolerance_V && v < k[i + 1] - merged.tolerance_V;
       });
-      if (!seen)
-        result.warnings.push_back("between " + Volts(k[i]) + " and " + Volts(k[i + 1]) +
-                                  " V no level was visited: where the rules hand over there is "
-                                  "not in the data (the model interpolates linearly)");
+      // Unvisited gaps matter where the gain changes across them: where in the gap it
+      // changes is not in the data.
+      const double ka = final_fit.theta[1 + i], kb = final_fit.theta[2 + i];
+      if (!seen && std::abs(kb - ka) > 0.1 * std::max(std::abs(ka), std::abs(kb)))
+        result.warnings.push_back(
+            "between " + Volts(k[i]) + " and " + Volts(k[i + 1]) + " V the DC gain changes from " +
+            Volts(ka) + " to " + Volts(kb) +
+            " mm/V and no level between them was visited: where the change happens is not in "
+            "the data (the model interpolates linearly)");
     }
     std::string levels_text = "levels visited: " + VoltList(result.levels_V);
     if (result.levels_V.front() > 0.25 * result.levels_V.back())

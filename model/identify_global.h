@@ -12,36 +12,56 @@
 // premise z is |u(t - T)| (the voltage as it reaches the actuator), |u(t)|, or |u|
 // held through rest (ts_fuzzy.h).
 //
-// Physical plausibility is built into the parameters, not checked afterwards:
+// Physical plausibility is built into the parameters and the selection, not noted after
+// the fact:
 //   - T in [0, max_delay_s];
 //   - every factor has c = exp(parameter) > 0, so every local model and every frozen
 //     blend (factors blend convexly) is stable, at, between and beyond the knots;
 //   - every factor's natural frequency lies in [w_min, w_max]: w_max = 0.8 pi / dt (the
 //     band the sampling resolves), w_min = 0.5 / (longest recording): a slower mode could
 //     not be told from drift. After the fit the frozen blend's poles are checked on a
-//     grid of z from 0 to 1.25 c_R; a model with a pole beyond Nyquist is never returned.
+//     grid of z from 0 to 1.25 c_R; a model with a pole beyond Nyquist is never returned;
+//   - switching: frozen stability does not make the blend behave when the premise jumps
+//     across rules whose dynamics differ. From steady state at every visited level (and
+//     rest), a jump to every other level may swing beyond its start and end values no
+//     further than the frozen model at the new level does on the same step, plus a
+//     quarter of the step and three noise deviations. A fit that breaks this is never
+//     kept, however well it fits (a staircase steps only between neighbouring levels and
+//     would not show it).
 //
 // Fit: Levenberg-Marquardt (Ceres) on the output error of every fitted sample, the
-// Jacobian by forward differences of the exact simulation (simulate.h). Each structure
-// is fitted on all the data from several starts, the best kept: a linear model of the
-// same order fitted on all the data (identify.h, which also finds a dead time), and
-// generic slow real poles at three time scales with that dead time.
+// Jacobian by forward differences of the exact simulation (simulate.h). A structure
+// without a start of its own is fitted on all the data from several starts, the best
+// kept: a linear model of the same order fitted on all the data (identify.h, which also
+// finds a dead time), and generic slow real poles at three time scales.
 //
 // Structure, chosen on held-out data (leave one recording out; with one recording, ten
 // blocks in time, alternately fitted and held out, in turn; each fold starts from the
-// all-data fit): first the premise (with a pilot order 2/1, a gain per visited level and
-// one set of dynamics), then the orders (1/0, 2/1, 3/2, 4/3), then where the dynamics
-// change: the split between two neighbouring knots that helps most in sample, kept while
-// the held-out error falls by more than 2 %. Among candidates within 2 % of the best
-// held-out error the one with fewest parameters wins. Fixed orders or premise skip their
-// stage.
+// all-data fit):
+//   1. a pilot: orders 2/1 (unless given), a gain per visited level, one set of dynamics,
+//      premise |u(t - T)|;
+//   2. where the dynamics change: the split between two neighbouring knots that helps
+//      most in sample, kept while the held-out error falls by more than 2 %;
+//   3. the dead time: the profile of the fit over T, every second from 0 to max_delay_s
+//      and then every sample within a second of the best, each point half a sample off
+//      the grid (the premise's delay is a whole number of samples and jumps at multiples
+//      of the sample period, so a free fit does not cross them reliably); the best point
+//      refitted with T free, kept if the held-out error falls. A zero trades off against
+//      T, and a fit started at the wrong T stays in that basin;
+//   4. the orders (1/0, 2/1, 3/2, 4/3) at the chosen knots, higher orders also started
+//      from the current fit with a cancelling pole and zero added;
+//   5. the premise, at the chosen structure.
+// The premise and the orders are compared only once the model is close to the data:
+// compared on the pilot, whose error is what it cannot represent, they would be chosen by
+// noise. Among candidates within 2 % of the best held-out error the one with fewest
+// parameters wins. Fixed orders or premise skip their stage.
 //
-// Status (work in progress, `flexid identify --method global`; figures in the README's
-// "Identification"): on the independent simulator's multilevel recordings the selected
-// model predicts fresh data within the noise, but on its staircases the fit can stall in a
-// local minimum and the dead time trades off against a zero; the selection takes about
-// 30 s for 20,000 samples. The dead time needs a search that converges, and the fits need
-// analytic sensitivities to be fast.
+// Status (`flexid identify` uses this by default; figures in the README's
+// "Identification"): on the independent simulator's recordings that visit every level
+// the model predicts fresh data within the noise. The dead time comes out 0.2-0.7 s long
+// (a zero takes part of it) with an interval that covers that. The selection takes
+// 15-25 s for 20,000 samples: the fits need analytic sensitivities and fewer
+// simulations to be fast.
 
 #pragma once
 

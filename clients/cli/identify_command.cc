@@ -4,8 +4,10 @@
 // flexid --db PATH identify (--trials 3,4 | --actuator ID [--latest N]) [...]
 //                                                    (here, on stored trials; nothing stored)
 //
-// Finds the voltage levels, fits one local transfer function with dead time per level
-// and assembles the T-S model (model/identify_ts.h); or, with --structure physics, fits
+// Fits the whole T-S model at once, its structure chosen on held-out data
+// (model/identify_global.h); or, with --method time, finds the voltage levels, fits one
+// local transfer function with dead time per level and assembles the T-S model
+// (model/identify_ts.h); or, with --structure physics, fits
 // the physics chain's parameters (model/greybox.h); or, with --method frequency, fits the
 // rational model to frequency responses estimated from square waves
 // (model/frequency_response.h). --json prints the model file document itself, with its
@@ -44,7 +46,7 @@ struct IdentifyArgs {
   double max_delay_s = 10.0;
   std::optional<double> delay_s;
   std::string structure = "free";
-  std::string method = "time";
+  std::string method = "global";
   std::string geometry_mm = "40x8x2";
   std::string predict_geometry_mm;
   // Stored trials instead of CSV files.
@@ -595,15 +597,19 @@ void RegisterIdentifyCommand(CLI::App& app) {
   cmd->add_option("--out", args->out, "Write the model file here");
   cmd->add_flag("--json", args->as_json, "Print the model file document (with fit figures)");
   cmd->add_option("--validate", args->validate, "Recordings to validate on (not fitted)");
-  cmd->add_option("--zeros", args->zeros, "Numerator order (default 3)");
-  cmd->add_option("--poles", args->poles, "Denominator order (default 4)");
+  cmd->add_option("--zeros", args->zeros,
+                  "Numerator order (global: chosen on held-out data unless given; time and "
+                  "frequency: default 3)");
+  cmd->add_option("--poles", args->poles,
+                  "Denominator order (global: chosen on held-out data unless given; time and "
+                  "frequency: default 4)");
   cmd->add_option("--max-delay", args->max_delay_s, "Largest dead time searched, s (default 10)");
   cmd->add_option("--delay", args->delay_s, "Fix the dead time, s, instead of estimating it");
   cmd->add_option("--structure", args->structure,
                   "free (Eq. 18 coefficients) or physics (Eqs. 1-13 parameters)");
   cmd->add_option("--method", args->method,
-                  "time (a transfer function per level, blended), global (the whole T-S model "
-                  "in one output-error fit, structure chosen on held-out data; in progress) or "
+                  "global (default: the whole T-S model in one output-error fit, its structure "
+                  "chosen on held-out data), time (a transfer function per level, blended) or "
                   "frequency (square-wave frequency responses)");
   cmd->add_option("--geometry", args->geometry_mm,
                   "Beam LxWxh in mm for --structure physics (default 40x8x2)");

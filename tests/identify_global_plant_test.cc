@@ -1,0 +1,77 @@
+// Global T-S identification (model/identify_global.h) on fresh plants of the independent
+// T-S plant (ts_plant.h): fits on a staircase, scored on a fresh multilevel recording
+// against the noise-free deflection.
+//
+// Known gap (issue 12): on this plant family (each rule driven by its share of the input,
+// slow modes of 50-110 s against 80 s holds) the identifier does not yet meet the bar:
+// seed 101 predicts at 3.9 sigma with a dead time 3 s long, seed 202 at 21 sigma. The
+// tests are registered WILL_FAIL (tests/CMakeLists.txt) so that they run in every build
+// and show when the identifier reaches the bar: then they "fail" and WILL_FAIL goes.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <iostream>
+#include <string>
+#include <vector>
+
+#include "model/identify_global.h"
+#include "model/simulate.h"
+#include "model/transfer_function.h"
+#include "ts_plant.h"
+
+namespace flexid::testing {
+namespace {
+
+// Fits on a staircase (80 s per level, 12,901 samples) with default options, then
+// predicts a fresh 600 s multilevel recording; seeds fixed before the first run.
+void FitStaircaseAndPredictFreshLevels(uint64_t seed) {
+  const TsPlant plant = DrawTsPlant(seed);
+  const std::string name = "ts-plant-" + std::to_string(seed);
+  const TsRecording fit =
+      RecordTsPlant(plant, TsStaircase(80.0), seed * 10 + 1, name + "-staircase.csv");
+  const TsRecording check =
+      RecordTsPlant(plant, TsRandomLevels(seed * 10 + 2), seed * 10 + 3, name + "-levels.csv");
+
+  const auto start = std::chrono::steady_clock::now();
+  const model::GlobalEstimate estimate = model::IdentifyGlobalTs({fit.recording});
+  const double fit_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+
+  const std::vector<double> predicted =
+      model::Simulate(estimate.model, check.recording.t_s, check.recording.voltage_V);
+  double squares = 0.0;
+  for (size_t k = 0; k < predicted.size(); ++k)
+    squares += (predicted[k] - check.clean_mm[k]) * (predicted[k] - check.clean_mm[k]);
+  const double rmse_mm = std::sqrt(squares / static_cast<double>(predicted.size()));
+  const double ratio = rmse_mm / plant.noise_std_mm;
+
+  const std::string summary = "seed " + std::to_string(seed) + ": validation RMSE " +
+                              std::to_string(rmse_mm) + " mm = " + std::to_string(ratio) +
+                              " sigma; dead time " + std::to_string(estimate.delay_s.value) +
+                              " s (true " + std::to_string(plant.delay_s) +
+                              " s); structure: " + estimate.structure.Describe();
+  std::cout << summary << "\n  fit " << fit_s << " s, " << estimate.fits
+            << " fits\n  reason: " << estimate.reason << "\n  plant: " << DescribeTsPlant(plant)
+            << "\n";
+  ::testing::Test::RecordProperty("rmse_over_sigma", std::to_string(ratio));
+  ::testing::Test::RecordProperty("delay_found_s", std::to_string(estimate.delay_s.value));
+  ::testing::Test::RecordProperty("delay_true_s", std::to_string(plant.delay_s));
+
+  EXPECT_LE(ratio, 1.5) << summary;
+  EXPECT_NEAR(estimate.delay_s.value, plant.delay_s, 1.5) << summary;
+}
+
+TEST(IdentifyGlobalPlant, Seed101PredictsFreshLevelsWithinTheNoise) {
+  FitStaircaseAndPredictFreshLevels(101);
+}
+
+TEST(IdentifyGlobalPlant, Seed202PredictsFreshLevelsWithinTheNoise) {
+  FitStaircaseAndPredictFreshLevels(202);
+}
+
+}  // namespace
+}  // namespace flexid::testing
+
