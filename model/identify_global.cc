@@ -804,11 +804,11 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
   // The premise and the orders are compared where the model is already close to the data:
   // compared on the pilot, whose error is dominated by what it cannot represent, they
   // would be chosen by noise.
-  std::vector<double> switch_levels = result.levels_V;
+  // Switching is checked between the knots (and rest), where the rules sit: with many
+  // visited levels (a 31-level staircase) every pair would cost a thousand simulations.
   const std::vector<double> knots =
       InitialKnots(problem, result.levels_V, result.plateau_input, options.max_rules);
-  switch_levels.insert(switch_levels.end(), knots.begin(), knots.end());
-  Selector selector(problem, usable, switch_levels);
+  Selector selector(problem, usable, knots);
   const bool orders_fixed = options.num_poles >= 1;
   GlobalStructure current;
   current.num_zeros = orders_fixed ? options.num_zeros : 1;

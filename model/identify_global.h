@@ -22,8 +22,8 @@
 //     not be told from drift. After the fit the frozen blend's poles are checked on a
 //     grid of z from 0 to 1.25 c_R; a model with a pole beyond Nyquist is never returned;
 //   - switching: frozen stability does not make the blend behave when the premise jumps
-//     across rules whose dynamics differ. From steady state at every visited level (and
-//     rest), a jump to every other level may swing beyond its start and end values no
+//     across rules whose dynamics differ. From steady state at every knot (the visited
+//     levels, when there are few) and at rest, a jump to every other one may swing beyond its start and end values no
 //     further than the frozen model at the new level does on the same step, plus a
 //     quarter of the step and three noise deviations. A fit that breaks this is never
 //     kept, however well it fits (a staircase steps only between neighbouring levels and
