@@ -91,6 +91,7 @@ size_t Count(const Mask& mask) {
 
 struct Layout {
   GlobalStructure s;
+  double w_min = 0.0;  // slowest root allowed, rad/s (Problem::w_min)
   int PerDynamics() const { return s.num_poles + s.num_zeros; }
   int Rules() const { return static_cast<int>(s.knots_V.size()); }
   int DynamicsKnots() const { return static_cast<int>(s.dynamics_knots_V.size()); }
@@ -120,6 +121,20 @@ struct Layout {
       const double x = factor ? std::exp(pa[j]) : pa[j], y = factor ? std::exp(pb[j]) : pb[j];
       out[static_cast<size_t>(j)] = (1 - w) * x + w * y;
     }
+    // The bounds keep every factor's natural frequency sqrt(c0) in the band, but a real
+    // pair can still put one root far below it: a near-integrator that absorbs drift or
+    // an asymmetry as a huge DC gain. Such a root is held at w_min (the cost is flat
+    // below it, so the fit cannot use it).
+    for (int q = 0; q < s.num_poles / 2; ++q) {
+      double& c1 = out[static_cast<size_t>(2 * q)];
+      double& c0 = out[static_cast<size_t>(2 * q + 1)];
+      const double disc = c1 * c1 - 4 * c0;
+      if (disc < 0) continue;
+      const double slow = 2 * c0 / (c1 + std::sqrt(disc)), fast = c0 / slow;
+      if (slow >= w_min) continue;
+      c1 = w_min + fast;
+      c0 = w_min * fast;
+    }
     return out;
   }
 
@@ -133,7 +148,8 @@ struct Layout {
     std::vector<double> den = {1.0};
     int j = 0;
     for (int q = 0; q < s.num_poles / 2; ++q, j += 2)
-      den = MultiplyPolynomials(den, {1.0, d[static_cast<size_t>(j)], d[static_cast<size_t>(j + 1)]});
+      den =
+          MultiplyPolynomials(den, {1.0, d[static_cast<size_t>(j)], d[static_cast<size_t>(j + 1)]});
     if (s.num_poles % 2 == 1) den = MultiplyPolynomials(den, {1.0, d[static_cast<size_t>(j++)]});
     const double scale = gain * den.back();
     std::vector<double> num(static_cast<size_t>(s.num_zeros) + 1);
@@ -181,7 +197,8 @@ struct Layout {
     if (index <= Rules())
       return "DC gain at " + Volts(s.knots_V[static_cast<size_t>(index - 1)]) + " V";
     const int d = (index - 1 - Rules()) / PerDynamics(), j = (index - 1 - Rules()) % PerDynamics();
-    const std::string where = " of the dynamics at " + Volts(s.dynamics_knots_V[static_cast<size_t>(d)]) + " V";
+    const std::string where =
+        " of the dynamics at " + Volts(s.dynamics_knots_V[static_cast<size_t>(d)]) + " V";
     if (j < s.num_poles) return "pole factor " + std::to_string(j / 2 + 1) + where;
     return "zero coefficient " + std::to_string(j - s.num_poles + 1) + where;
   }
@@ -203,7 +220,8 @@ std::vector<double> Transfer(const Layout& from, const std::vector<double>& thet
   for (double v : to.s.dynamics_knots_V) {
     const std::vector<double> d = from.DynamicsAt(theta.data(), v);
     for (int j = 0; j < to.PerDynamics(); ++j)
-      out.push_back(j < to.s.num_poles ? std::log(d[static_cast<size_t>(j)]) : d[static_cast<size_t>(j)]);
+      out.push_back(j < to.s.num_poles ? std::log(d[static_cast<size_t>(j)])
+                                       : d[static_cast<size_t>(j)]);
   }
   return out;
 }
@@ -308,8 +326,8 @@ std::string SwitchingProblem(const TsModel& model, const Problem& problem,
     for (const auto& pole : Poles(frozen))
       if (pole.real() < 0.0) slowest_s = std::max(slowest_s, -1.0 / pole.real());
   }
-  const size_t n = static_cast<size_t>(
-      std::clamp(std::ceil(5.0 * slowest_s / problem.dt_s), 100.0, 20000.0));
+  const size_t n =
+      static_cast<size_t>(std::clamp(std::ceil(5.0 * slowest_s / problem.dt_s), 100.0, 20000.0));
   SimulationOptions options;
   options.start_in_steady_state = true;
   options.scheduling_resolution_V = problem.resolution_V;
@@ -323,7 +341,8 @@ std::string SwitchingProblem(const TsModel& model, const Problem& problem,
   for (size_t j = 0; j < levels_V.size(); ++j) {
     std::vector<double> unit(n, 1.0);
     unit[0] = 0.0;
-    const TsModel alone = MakeTsModelOnLevels({{levels_V[j], FrozenModelAt(model, levels_V[j]), {}}});
+    const TsModel alone =
+        MakeTsModelOnLevels({{levels_V[j], FrozenModelAt(model, levels_V[j]), {}}});
     frozen_swing[j] = excursion(SimulateUniform(alone, problem.dt_s, unit, options), 0.0, gain[j]) /
                       std::max(std::abs(gain[j]), 1e-12);
   }
@@ -381,9 +400,8 @@ FitResult Fit(const Problem& problem, const Layout& layout, const Mask& mask,
   layout.Bounds(problem, &lo, &hi);
   if (problem.fixed_delay_s) lo[0] = hi[0] = *problem.fixed_delay_s;
   for (int j = 0; j < p; ++j)
-    theta[static_cast<size_t>(j)] =
-        std::clamp(theta[static_cast<size_t>(j)], lo[static_cast<size_t>(j)],
-                   hi[static_cast<size_t>(j)]);
+    theta[static_cast<size_t>(j)] = std::clamp(
+        theta[static_cast<size_t>(j)], lo[static_cast<size_t>(j)], hi[static_cast<size_t>(j)]);
   auto* cost = new ceres::DynamicNumericDiffCostFunction<OutputErrorCost, ceres::FORWARD>(
       new OutputErrorCost{&problem, &layout, &mask});
   cost->AddParameterBlock(p);
@@ -508,7 +526,7 @@ class Selector {
     const TfEstimate e = IdentifyTransferFunction(MaskedSegments(problem_, mask), options);
     GlobalStructure one{zeros, poles, SchedulingVariable::kAbsVoltage, {0.0}, {0.0}};
     std::vector<double> theta = {e.tf.delay_s};
-    const std::vector<double> rule = RuleParameters(e.tf, Layout{one}, problem_);
+    const std::vector<double> rule = RuleParameters(e.tf, Layout{one, problem_.w_min}, problem_);
     theta.insert(theta.end(), rule.begin(), rule.end());
     return starts_.emplace(key, std::move(theta)).first->second;
   }
@@ -525,15 +543,15 @@ class Selector {
 
   // Fits a structure on all usable data from each given start (when none is given, from
   // the linear start and generic starts) and keeps the best that
-  // switches plausibly between levels (SwitchingProblem); then fits each fold from that solution and
-  // measures the held-out error. Starting the folds from the all-data fit keeps them in
-  // the same basin of the cost, so that folds compare structures rather than local
-  // minima. `all` receives the all-data parameters.
+  // switches plausibly between levels (SwitchingProblem); then fits each fold from that solution
+  // and measures the held-out error. Starting the folds from the all-data fit keeps them in the
+  // same basin of the cost, so that folds compare structures rather than local minima. `all`
+  // receives the all-data parameters.
   StructureTrial Evaluate(const std::string& stage, const GlobalStructure& s,
                           const std::vector<std::vector<double>>& starts,
                           std::vector<double>* all) {
     StructureTrial trial{stage, s, kInf, ""};
-    const Layout layout{s};
+    const Layout layout{s, problem_.w_min};
     try {
       FitResult best;
       std::vector<std::vector<double>> tries = starts;
@@ -567,9 +585,8 @@ class Selector {
       for (size_t f = 0; f < folds_.size(); ++f) {
         const FitResult fit = Fit(fold_problem, layout, folds_[f].fit, best.theta);
         ++fits_;
-        const double e =
-            OutputError(problem_, layout.Model(fit.theta.data(), problem_.rest_band_V),
-                        folds_[f].held_out, nullptr);
+        const double e = OutputError(problem_, layout.Model(fit.theta.data(), problem_.rest_band_V),
+                                     folds_[f].held_out, nullptr);
         sse += e;
         n += Count(folds_[f].held_out);
       }
@@ -587,7 +604,7 @@ class Selector {
   // zeros; the gains and dead time of the linear start.
   std::vector<std::vector<double>> GenericStarts(const GlobalStructure& s) {
     std::vector<std::vector<double>> out;
-    const Layout layout{s};
+    const Layout layout{s, problem_.w_min};
     for (const auto& [fast_s, slow_s] :
          std::vector<std::pair<double, double>>{{3.0, 30.0}, {10.0, 100.0}, {1.0, 10.0}}) {
       std::vector<double> theta = Start(s, -1);
@@ -713,9 +730,8 @@ std::string GlobalStructure::Describe() const {
                      std::to_string(num_zeros) + (num_zeros == 1 ? " zero, " : " zeros, ");
   if (knots_V.size() == 1) return text + "one rule (linear)";
   text += std::to_string(knots_V.size()) + " rules at " + VoltList(knots_V) + ", ";
-  text += dynamics_knots_V.size() == 1
-              ? std::string("one set of dynamics")
-              : "dynamics at " + VoltList(dynamics_knots_V);
+  text += dynamics_knots_V.size() == 1 ? std::string("one set of dynamics")
+                                       : "dynamics at " + VoltList(dynamics_knots_V);
   return text + ", premise " + PremiseText(premise);
 }
 
@@ -800,7 +816,8 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
         if (s.t_s[k] >= a && s.t_s[k] < b) m[k] = 0;
     usable.push_back(std::move(m));
   }
-  if (Count(usable) < 100) throw InputError("fewer than 100 samples to fit outside the held-out spans");
+  if (Count(usable) < 100)
+    throw InputError("fewer than 100 samples to fit outside the held-out spans");
 
   // Structure selection: a pilot (two poles and one zero unless the orders are given, one
   // set of dynamics, the premise the seed's plant uses), then dynamics that change with
@@ -845,9 +862,10 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
       std::string text = stage + " (held-out RMSE mm):";
       for (size_t i = 0; i < trials.size(); ++i) {
         const GlobalStructure& t = trials[i].structure;
-        text += " " + (stage == "premise" ? std::string(PremiseText(t.premise))
-                                          : std::to_string(t.num_poles) + "p" +
-                                                std::to_string(t.num_zeros) + "z") +
+        text += " " +
+                (stage == "premise"
+                     ? std::string(PremiseText(t.premise))
+                     : std::to_string(t.num_poles) + "p" + std::to_string(t.num_zeros) + "z") +
                 " " +
                 (std::isfinite(trials[i].held_out_rmse_mm) ? Volts(trials[i].held_out_rmse_mm)
                                                            : std::string("failed")) +
@@ -863,7 +881,7 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
   // 2. Dynamics that change with the voltage: split the knots' range where a change of
   // dynamics helps most in sample, kept while the held-out error falls by more than 2 %.
   while (current.dynamics_knots_V.size() < current.knots_V.size()) {
-    const Layout from{current};
+    const Layout from{current, problem.w_min};
     GlobalStructure best_split;
     std::vector<double> best_theta;
     double least = kInf;
@@ -875,7 +893,7 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
           s.dynamics_knots_V.push_back(v);
       if (s.dynamics_knots_V.size() == current.dynamics_knots_V.size()) continue;
       std::sort(s.dynamics_knots_V.begin(), s.dynamics_knots_V.end());
-      const Layout to{s};
+      const Layout to{s, problem.w_min};
       try {
         FitResult fit = Fit(problem, to, usable, Transfer(from, current_all, to));
         selector.CountFit();
@@ -913,7 +931,7 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
   // the best point refitted with the dead time free.
   if (!options.fixed_delay_s) {
     Problem fixed = problem;
-    const Layout layout{current};
+    const Layout layout{current, problem.w_min};
     FitResult best;
     auto try_delay = [&](double delay_s, std::vector<double> start, int iterations) {
       fixed.fixed_delay_s = std::clamp(delay_s, 0.0, problem.max_delay_s);
@@ -973,7 +991,8 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
         GlobalStructure next = step;
         ++next.num_poles;
         ++next.num_zeros;
-        theta = RaiseOrder(Layout{step}, theta, Layout{next}, problem);
+        theta =
+            RaiseOrder(Layout{step, problem.w_min}, theta, Layout{next, problem.w_min}, problem);
         step = next;
       }
       starts.back().push_back(std::move(theta));
@@ -995,7 +1014,7 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
   result.held_out_rmse_mm = current_held_out;
 
   // The chosen structure's fit on every usable sample (made during selection).
-  const Layout layout{current};
+  const Layout layout{current, problem.w_min};
   FitResult final_fit;
   final_fit.theta = current_all;
   final_fit.samples = Count(usable);
@@ -1007,8 +1026,8 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
   result.fits = selector.fits();
   const double fastest = FastestFrozenPole(result.model, current.knots_V.back());
   if (!(fastest < M_PI / problem.dt_s))
-    throw InputError("the fitted model has a pole beyond the Nyquist frequency (" +
-                     Volts(fastest) + " rad/s at a " + Volts(problem.dt_s) +
+    throw InputError("the fitted model has a pole beyond the Nyquist frequency (" + Volts(fastest) +
+                     " rad/s at a " + Volts(problem.dt_s) +
                      " s sample period): the data cannot support this structure");
 
   // Fit figures over every usable sample.
@@ -1031,7 +1050,9 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
   // Intervals (header).
   const int p = layout.Size();
   const size_t n = final_fit.samples;
-  result.noise_std_mm = std::sqrt(final_fit.ssr / static_cast<double>(n > static_cast<size_t>(p) ? n - static_cast<size_t>(p) : 1));
+  result.noise_std_mm =
+      std::sqrt(final_fit.ssr /
+                static_cast<double>(n > static_cast<size_t>(p) ? n - static_cast<size_t>(p) : 1));
   Eigen::MatrixXd covariance = Eigen::MatrixXd::Zero(p, p);
   std::vector<bool> determined(static_cast<size_t>(p), true);
   {
@@ -1142,7 +1163,8 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
           held_s += plateau.t_end_s - plateau.t_start_s;
       if (held_s < slowest_s)
         result.warnings.push_back("level " + Volts(level.level_V) + " V is held for " +
-                                  Volts(held_s) + " s in all, less than the slowest time constant (" +
+                                  Volts(held_s) +
+                                  " s in all, less than the slowest time constant (" +
                                   Volts(slowest_s) + " s): its gain there is extrapolated");
     }
   }

@@ -19,7 +19,9 @@
 //     blend (factors blend convexly) is stable, at, between and beyond the knots;
 //   - every factor's natural frequency lies in [w_min, w_max]: w_max = 0.8 pi / dt (the
 //     band the sampling resolves), w_min = 0.5 / (longest recording): a slower mode could
-//     not be told from drift. After the fit the frozen blend's poles are checked on a
+//     not be told from drift. A real pair's slower root is held at w_min or above too
+//     (the box bounds alone let it approach s = 0: an integrator that turned a polarity
+//     asymmetry into a drift with a DC gain of 366 mm/V). After the fit the frozen blend's poles are checked on a
 //     grid of z from 0 to 1.25 c_R; a model with a pole beyond Nyquist is never returned;
 //   - switching: frozen stability does not make the blend behave when the premise jumps
 //     across rules whose dynamics differ. From steady state at every knot (the visited
