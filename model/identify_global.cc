@@ -24,6 +24,8 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 // Candidates within this factor of the best held-out error count as equally good; the
 // one with fewest parameters wins.
 constexpr double kHeldOutTolerance = 1.02;
+// Samples the structure is chosen on, at least, when the data are denser (Decimate).
+constexpr size_t kSelectionSamples = 4000;
 // A fold starts from the all-data fit, close to its own optimum: few iterations suffice.
 constexpr int kFoldIterations = 20;
 
@@ -434,6 +436,71 @@ FitResult Fit(const Problem& problem, const Layout& layout, const Mask& mask,
   return result;
 }
 
+// The best fit with the dead time fixed at each of `delays_s` in turn, the rest free and
+// started from `start`, at most `iterations` each; an empty theta if none could be
+// fitted. `fits` counts the fits made.
+FitResult BestOverDelays(const Problem& problem, const Layout& layout, const Mask& mask,
+                         const std::vector<double>& start, const std::vector<double>& delays_s,
+                         int iterations, int* fits) {
+  Problem fixed = problem;
+  fixed.max_iterations = std::min(problem.max_iterations, iterations);
+  FitResult best;
+  for (double delay_s : delays_s) {
+    fixed.fixed_delay_s = std::clamp(delay_s, 0.0, problem.max_delay_s);
+    std::vector<double> theta = start;
+    theta[0] = *fixed.fixed_delay_s;
+    try {
+      FitResult fit = Fit(fixed, layout, mask, std::move(theta));
+      ++*fits;
+      if (fit.ssr < best.ssr) best = std::move(fit);
+    } catch (const InputError&) {
+    }
+  }
+  return best;
+}
+
+// Dead times every `step_s` within `half_width_s` of `centre_s` (centre excluded), each
+// half a sample of `dt_s` off the sample grid: the premise's delay is a whole number of
+// samples and jumps at every multiple of the sample period, so the dead time's derivative
+// exists only between them and a free fit does not cross them reliably.
+std::vector<double> DelayGrid(double centre_s, double half_width_s, double step_s, double dt_s) {
+  std::vector<double> grid;
+  const double base = (std::floor(centre_s / dt_s) + 0.5) * dt_s;
+  const int count = static_cast<int>(std::ceil(half_width_s / step_s - 1e-9));
+  for (int m = -count; m <= count; ++m)
+    if (m != 0 || std::abs(base - centre_s) > 1e-9) grid.push_back(base + m * step_s);
+  return grid;
+}
+
+// Every `factor`-th sample of each series (and of the mask): the structure is chosen on
+// this coarser grid, where each fit costs `factor` times less. The chosen structure is
+// refitted at the full rate, the dead time rescanned there.
+void Decimate(int factor, Problem* problem, Mask* mask) {
+  if (factor <= 1) return;
+  auto keep = [factor](auto& v) {
+    size_t j = 0;
+    for (size_t k = 0; k < v.size(); k += static_cast<size_t>(factor)) v[j++] = v[k];
+    v.resize(j);
+  };
+  for (Series& s : problem->series) {
+    // The input over each coarse interval is the mean of the samples it holds, so that a
+    // step between two kept samples acts (to first order in the coarse period over the
+    // time constants) when it happened rather than at the next kept sample.
+    for (size_t k = 0; k < s.u.size(); k += static_cast<size_t>(factor)) {
+      const size_t end = std::min(s.u.size(), k + static_cast<size_t>(factor));
+      s.u[k] = std::accumulate(s.u.begin() + static_cast<long>(k),
+                               s.u.begin() + static_cast<long>(end), 0.0) /
+               static_cast<double>(end - k);
+    }
+    keep(s.t_s);
+    keep(s.u);
+    keep(s.y);
+  }
+  for (auto& m : *mask) keep(m);
+  problem->dt_s *= factor;
+  problem->w_max = 0.8 * M_PI / problem->dt_s;
+}
+
 // ---------------------------------------------------------------------------------------
 // Folds, starting models, candidates
 // ---------------------------------------------------------------------------------------
@@ -819,6 +886,29 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
   if (Count(usable) < 100)
     throw InputError("fewer than 100 samples to fit outside the held-out spans");
 
+  // Dense data: the structure is chosen on every factor-th sample (Decimate), as long as
+  // the coarser grid resolves the dynamics (the fastest pole of a linear 2/1 model of all
+  // the data under a tenth of the coarse sample rate) and keeps kSelectionSamples.
+  const Problem full = problem;
+  const Mask full_usable = usable;
+  int factor = std::clamp(static_cast<int>(Count(usable) / kSelectionSamples), 1, 5);
+  if (factor > 1) {
+    try {
+      IdentifyOptions probe;
+      probe.num_zeros = 1;
+      probe.num_poles = 2;
+      probe.max_delay_s = problem.max_delay_s;
+      double fastest_rad_s = 0.0;
+      for (const auto& pole :
+           Poles(IdentifyTransferFunction(MaskedSegments(problem, usable), probe).tf))
+        fastest_rad_s = std::max(fastest_rad_s, std::abs(pole));
+      factor = std::clamp(static_cast<int>(0.1 / (fastest_rad_s * problem.dt_s)), 1, factor);
+    } catch (const InputError&) {
+      factor = 1;
+    }
+    Decimate(factor, &problem, &usable);
+  }
+
   // Structure selection: a pilot (two poles and one zero unless the orders are given, one
   // set of dynamics, the premise the seed's plant uses), then dynamics that change with
   // the voltage, then the orders at those knots, then the premise at the chosen structure.
@@ -930,38 +1020,25 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
   // the current structure refitted at each dead time on a grid with the rest free, and
   // the best point refitted with the dead time free.
   if (!options.fixed_delay_s) {
-    Problem fixed = problem;
     const Layout layout{current, problem.w_min};
-    FitResult best;
-    auto try_delay = [&](double delay_s, std::vector<double> start, int iterations) {
-      fixed.fixed_delay_s = std::clamp(delay_s, 0.0, problem.max_delay_s);
-      fixed.max_iterations = std::min(problem.max_iterations, iterations);
-      start[0] = *fixed.fixed_delay_s;
-      try {
-        FitResult fit = Fit(fixed, layout, usable, std::move(start));
-        selector.CountFit();
-        if (fit.ssr < best.ssr) best = std::move(fit);
-      } catch (const InputError&) {
-      }
-    };
-    // Every second, then every sample within a second of the best. Each point lies half a
-    // sample off the sample grid: the premise's delay is a whole number of samples and
-    // jumps at every multiple of the sample period, so that the dead time's derivative
-    // exists only between them and a free fit cannot cross them reliably.
-    const int coarse = std::clamp(static_cast<int>(std::ceil(problem.max_delay_s)), 1, 30);
-    for (int i = 0; i <= coarse; ++i)
-      try_delay(problem.max_delay_s * i / coarse + 0.5 * problem.dt_s, current_all, 10);
+    int fits = 0;
+    // Every second from 0 to the largest, then every sample within a second of the best.
+    FitResult best = BestOverDelays(
+        problem, layout, usable, current_all,
+        DelayGrid(0.5 * problem.max_delay_s, 0.5 * problem.max_delay_s, 1.0, problem.dt_s), 10,
+        &fits);
     if (!best.theta.empty()) {
-      const std::vector<double> centre = best.theta;
-      const int fine = static_cast<int>(std::ceil(problem.max_delay_s / coarse / problem.dt_s));
-      for (int m = -fine; m <= fine; ++m)
-        if (m != 0) try_delay(centre[0] + m * problem.dt_s, centre, 5);
+      FitResult fine =
+          BestOverDelays(problem, layout, usable, best.theta,
+                         DelayGrid(best.theta[0], 1.0, problem.dt_s, problem.dt_s), 5, &fits);
+      if (fine.ssr < best.ssr) best = std::move(fine);
     }
+    for (int i = 0; i < fits; ++i) selector.CountFit();
     if (!best.theta.empty()) {
       std::vector<double> fitted;
       StructureTrial trial = selector.Evaluate("dead time", current, {best.theta}, &fitted);
       result.trials.push_back(trial);
-      if (trial.held_out_rmse_mm < current_held_out) {
+      if (trial.held_out_rmse_mm <= kHeldOutTolerance * current_held_out) {
         reasons.push_back("dead time: scanned from 0 to " + Volts(problem.max_delay_s) +
                           " s, best near " + Volts(best.theta[0]) + " s (held-out RMSE " +
                           Volts(trial.held_out_rmse_mm) + " mm, " + Volts(current_held_out) +
@@ -1013,7 +1090,35 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
   }
   result.held_out_rmse_mm = current_held_out;
 
-  // The chosen structure's fit on every usable sample (made during selection).
+  // Chosen on the coarse grid: refitted at the full rate, the dead time rescanned there
+  // within a coarse sample of where the coarse fit put it (a step is seen there up to
+  // factor - 1 samples late, and the premise's delay jumps at every full-rate sample).
+  if (factor > 1) {
+    problem = full;
+    usable = full_usable;
+    const Layout layout{current, problem.w_min};
+    int fits = 0;
+    if (!options.fixed_delay_s) {
+      FitResult scan = BestOverDelays(
+          problem, layout, usable, current_all,
+          DelayGrid(current_all[0], factor * problem.dt_s, problem.dt_s, problem.dt_s), 5, &fits);
+      if (!scan.theta.empty()) current_all = scan.theta;
+    }
+    try {
+      FitResult refined = Fit(problem, layout, usable, current_all);
+      ++fits;
+      if (SwitchingProblem(layout.Model(refined.theta.data(), problem.rest_band_V), problem, knots,
+                           std::sqrt(refined.ssr / static_cast<double>(refined.samples)))
+              .empty())
+        current_all = refined.theta;
+    } catch (const InputError&) {
+    }
+    for (int i = 0; i < fits; ++i) selector.CountFit();
+    result.notes.push_back("structure chosen on every " + std::to_string(factor) +
+                           "th sample, refitted on every sample");
+  }
+
+  // The chosen structure's fit on every usable sample.
   const Layout layout{current, problem.w_min};
   FitResult final_fit;
   final_fit.theta = current_all;
