@@ -99,7 +99,9 @@ Config ParseConfigText(std::string_view text, const std::string& path) {
   Read(root, "auth_window_s", path, &c.auth_window_s);
   if (const toml::table* id = root["identification"].as_table()) {
     const std::string where = path + ": identification";
-    CheckKeys(*id, {"zeros", "poles", "max_delay_s", "latest_trials"}, where);
+    CheckKeys(*id, {"method", "zeros", "poles", "max_delay_s", "latest_trials"}, where);
+    Read(*id, "method", where, &c.identification.method);
+    c.identification.orders_given = id->contains("zeros") || id->contains("poles");
     Read(*id, "zeros", where, &c.identification.zeros);
     Read(*id, "poles", where, &c.identification.poles);
     Read(*id, "max_delay_s", where, &c.identification.max_delay_s);
@@ -180,6 +182,8 @@ void Validate(const Config& c) {
   static const std::set<std::string> levels = {"trace", "debug", "info", "warn", "error"};
   if (!levels.count(c.log_level)) Fail("log_level", "expected trace, debug, info, warn or error");
   const IdentificationConfig& id = c.identification;
+  if (id.method != "global" && id.method != "time")
+    Fail("identification.method", "expected global or time, got \"" + id.method + "\"");
   if (id.poles < 1 || id.poles > 8 || id.zeros < 0 || id.zeros >= id.poles)
     Fail("identification", "need 1 <= poles <= 8 and 0 <= zeros < poles");
   if (!(id.max_delay_s >= 0.0) || !std::isfinite(id.max_delay_s))
@@ -235,9 +239,15 @@ std::vector<std::string> Describe(const Config& c) {
           ", clock_jump_forward_s " + std::to_string(c.health.clock_jump_forward_s) +
           ", clock_jump_messages " + std::to_string(c.health.clock_jump_messages) +
           ", writer_queue_samples " + std::to_string(c.health.writer_queue_samples),
-      "identification: zeros " + std::to_string(c.identification.zeros) + ", poles " +
-          std::to_string(c.identification.poles) + ", max_delay_s " +
-          std::to_string(c.identification.max_delay_s) + ", latest_trials " +
+      "identification: method " + c.identification.method + ", zeros " +
+          (c.identification.method == "global" && !c.identification.orders_given
+               ? std::string("chosen")
+               : std::to_string(c.identification.zeros)) +
+          ", poles " +
+          (c.identification.method == "global" && !c.identification.orders_given
+               ? std::string("chosen")
+               : std::to_string(c.identification.poles)) +
+          ", max_delay_s " + std::to_string(c.identification.max_delay_s) + ", latest_trials " +
           std::to_string(c.identification.latest_trials),
       "alerts: false_alarms_per_hour " + std::to_string(c.alerts.false_alarms_per_hour) +
           ", min_hold_s " + std::to_string(c.alerts.min_hold_s) + ", settle_s " +

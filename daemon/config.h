@@ -13,8 +13,15 @@
 namespace flexid::daemon {
 
 struct IdentificationConfig {
+  // "global": the whole T-S model in one fit, its structure chosen on held-out data
+  // (model/identify_global.h), as `flexid identify` does; "time": a transfer function per
+  // level, blended (model/identify_ts.h).
+  std::string method = "global";
+  // Orders: "time" always uses them; "global" only when the configuration gives them,
+  // and chooses them on held-out data otherwise.
   int zeros = 3;
   int poles = 4;
+  bool orders_given = false;
   double max_delay_s = 10.0;
   int latest_trials = 2;  // "identify" without trial ids uses this many latest complete trials
 };

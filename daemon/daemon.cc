@@ -41,6 +41,7 @@
 #include "lcmtypes/message_auth.h"
 #include "lcmtypes/wire_check.h"
 #include "model/diagnose.h"
+#include "model/identify_global.h"
 #include "model/identify_ts.h"
 #include "model/model_file.h"
 #include "model/simulate.h"
@@ -1175,29 +1176,44 @@ IdentifyResult RunIdentification(const std::string& database, const std::string&
       recordings.push_back(RecordingOfTrial(samples, id, 100));
       all.insert(all.end(), samples.begin(), samples.end());
     }
-    model::TsIdentifyOptions options;
-    options.local.num_zeros = config.zeros;
-    options.local.num_poles = config.poles;
-    options.local.max_delay_s = config.max_delay_s;
-    const model::TsEstimate estimate = model::IdentifyTsModel(recordings, options);
-    model::ModelDocument doc = estimate.local.size() == 1
-                                   ? model::FromTransferFunction(estimate.local[0].estimate.tf)
-                                   : model::FromTsModel(estimate.model);
-    doc.extra["fit"] = model::FitFiguresToJson(estimate.fit);
-    // Each local model's level and own fit figures, where `flexid identify` puts them.
-    if (estimate.local.size() == 1)
-      doc.extra["level_V"] = estimate.local[0].level_V;
-    else
-      for (size_t i = 0; i < estimate.local.size() && i < doc.local_extra.size(); ++i)
-        doc.local_extra[i]["fit"] = model::FitFiguresToJson(estimate.local[i].estimate.fit);
+    model::ModelDocument doc;
+    nlohmann::json fit;
+    if (config.method == "global") {
+      model::GlobalIdentifyOptions options;
+      if (config.orders_given) {
+        options.num_zeros = config.zeros;
+        options.num_poles = config.poles;
+      }
+      options.max_delay_s = config.max_delay_s;
+      const model::GlobalEstimate estimate = model::IdentifyGlobalTs(recordings, options);
+      doc = model::ToModelDocument(estimate);
+      fit = model::FitFiguresToJson(estimate.fit);
+      fit["levels_V"] = estimate.levels_V;
+    } else {
+      model::TsIdentifyOptions options;
+      options.local.num_zeros = config.zeros;
+      options.local.num_poles = config.poles;
+      options.local.max_delay_s = config.max_delay_s;
+      const model::TsEstimate estimate = model::IdentifyTsModel(recordings, options);
+      doc = estimate.local.size() == 1 ? model::FromTransferFunction(estimate.local[0].estimate.tf)
+                                       : model::FromTsModel(estimate.model);
+      doc.extra["fit"] = model::FitFiguresToJson(estimate.fit);
+      // Each local model's level and own fit figures, where `flexid identify --method
+      // time` puts them.
+      if (estimate.local.size() == 1)
+        doc.extra["level_V"] = estimate.local[0].level_V;
+      else
+        for (size_t i = 0; i < estimate.local.size() && i < doc.local_extra.size(); ++i)
+          doc.local_extra[i]["fit"] = model::FitFiguresToJson(estimate.local[i].estimate.fit);
+      fit = model::FitFiguresToJson(estimate.fit);
+      fit["levels_V"] = nlohmann::json::array();
+      for (const auto& local : estimate.local) fit["levels_V"].push_back(local.level_V);
+    }
     doc.extra["identified_from_trials"] = trial_ids;
     storage::ModelRecord record;
     record.actuator_id = actuator_id;
     record.created_utime = WallClockUtime();
     record.model_json = model::ModelToJson(doc).dump();
-    nlohmann::json fit = model::FitFiguresToJson(estimate.fit);
-    fit["levels_V"] = nlohmann::json::array();
-    for (const auto& local : estimate.local) fit["levels_V"].push_back(local.level_V);
     record.fit_json = fit.dump();
     record.trial_ids = trial_ids;
     record.samples_hash = storage::HashSamples(all);

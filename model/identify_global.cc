@@ -1276,4 +1276,42 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
   return result;
 }
 
+ModelDocument ToModelDocument(const GlobalEstimate& e) {
+  auto Number = [](double value) {
+    return std::isfinite(value) ? nlohmann::json(value) : nlohmann::json(nullptr);
+  };
+  ModelDocument doc;
+  if (e.model.rules.size() == 1) {
+    doc = FromTransferFunction(e.model.rules.front().tf);
+  } else {
+    doc = FromTsModel(e.model);
+    for (size_t i = 0; i < e.rules.size(); ++i)
+      doc.local_extra[i] = {{"dc_gain",
+                             {{"value", e.rules[i].dc_gain.value},
+                              {"half_width_95", Number(e.rules[i].dc_gain.half_width_95)}}}};
+  }
+  nlohmann::json structure = {{"method", "global"},
+                              {"num_zeros", e.structure.num_zeros},
+                              {"num_poles", e.structure.num_poles},
+                              {"premise", SchedulingVariableName(e.structure.premise)},
+                              {"knots_V", e.structure.knots_V},
+                              {"reason", e.reason}};
+  doc.extra["structure"] = structure;
+  doc.extra["fit"] = FitFiguresToJson(e.fit);
+  doc.extra["held_out_rmse_mm"] = Number(e.held_out_rmse_mm);
+  doc.extra["noise_std_mm"] = e.noise_std_mm;
+  doc.extra["dead_time_s"] = {{"value", e.delay_s.value},
+                              {"half_width_95", Number(e.delay_s.half_width_95)}};
+  doc.extra["levels_V"] = e.levels_V;
+  // One rule: the level it was identified at, where `flexid models diff` pairs models.
+  if (e.rules.size() == 1 && e.levels_V.size() == 1) doc.extra["level_V"] = e.levels_V.front();
+  if (e.rules.size() == 1)
+    doc.extra["dc_gain"] = {{"value", e.rules[0].dc_gain.value},
+                            {"half_width_95", Number(e.rules[0].dc_gain.half_width_95)}};
+  if (!e.undetermined.empty()) doc.extra["undetermined"] = e.undetermined;
+  if (!e.warnings.empty()) doc.extra["warnings"] = e.warnings;
+  if (!e.notes.empty()) doc.extra["notes"] = e.notes;
+  return doc;
+}
+
 }  // namespace flexid::model

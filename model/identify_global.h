@@ -78,6 +78,7 @@
 #include <vector>
 
 #include "model/identify.h"
+#include "model/model_file.h"
 #include "model/recording.h"
 #include "model/ts_fuzzy.h"
 
@@ -148,5 +149,12 @@ struct GlobalEstimate {
 // std::invalid_argument for invalid options.
 GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
                                 const GlobalIdentifyOptions& options = {});
+
+// The model file document of an estimate (model_file.h): the model (a transfer function
+// when there is one rule), each rule's DC gain with its interval in local_extra, and in
+// extra the structure with the reason for it, the fit figures, the held-out RMSE, the
+// noise, the dead time with its interval, the levels, and the warnings, undetermined
+// parameters and notes. Non-finite figures are written as null.
+ModelDocument ToModelDocument(const GlobalEstimate& estimate);
 
 }  // namespace flexid::model

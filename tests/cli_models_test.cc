@@ -70,8 +70,9 @@ TEST_F(CliModels, IdentifyListShowDiffActivate) {
   EXPECT_EQ(v1["trials"].size(), 2u);
   EXPECT_EQ(v1["model"]["kind"], "ts_fuzzy");
   ASSERT_EQ(v1["model"]["local_models"].size(), 2u);
-  for (const json& local : v1["model"]["local_models"])  // each local model's own fit
-    EXPECT_GT(local["fit"]["fit_percent"].get<double>(), 80.0) << local.dump();
+  for (const json& local : v1["model"]["local_models"])  // each rule's DC gain and interval
+    EXPECT_GT(local["dc_gain"]["half_width_95"].get<double>(), 0.0) << local.dump();
+  EXPECT_EQ(v1["model"]["structure"]["method"], "global");  // the path `flexid identify` takes
   EXPECT_GT(v1["fit"]["fit_percent"].get<double>(), 80.0);
 
   r = Online("identify --actuator S1 --trials " + t8 + " --out " + scratch_.File("v2.json"));

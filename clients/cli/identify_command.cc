@@ -237,45 +237,19 @@ void RunGlobal(const IdentifyArgs& args, model::ModelDocument* doc,
                 " and choosing its structure on held-out data ...");
   const model::GlobalEstimate e = model::IdentifyGlobalTs(recordings, options);
   progress.Finish();
-  if (e.model.rules.size() == 1) {
-    *doc = model::FromTransferFunction(e.model.rules.front().tf);
-  } else {
-    *doc = model::FromTsModel(e.model);
-    for (size_t i = 0; i < e.rules.size(); ++i)
-      doc->local_extra[i] = {{"dc_gain",
-                              {{"value", e.rules[i].dc_gain.value},
-                               {"half_width_95", Number(e.rules[i].dc_gain.half_width_95)}}}};
-  }
-  json structure = {{"method", "global"},
-                    {"num_zeros", e.structure.num_zeros},
-                    {"num_poles", e.structure.num_poles},
-                    {"premise", model::SchedulingVariableName(e.structure.premise)},
-                    {"knots_V", e.structure.knots_V},
-                    {"reason", e.reason}};
-  doc->extra["structure"] = structure;
-  doc->extra["fit"] = model::FitFiguresToJson(e.fit);
-  doc->extra["held_out_rmse_mm"] = Number(e.held_out_rmse_mm);
-  doc->extra["noise_std_mm"] = e.noise_std_mm;
-  doc->extra["dead_time_s"] = {{"value", e.delay_s.value},
-                               {"half_width_95", Number(e.delay_s.half_width_95)}};
-  doc->extra["levels_V"] = e.levels_V;
-  if (e.rules.size() == 1)
-    doc->extra["dc_gain"] = {{"value", e.rules[0].dc_gain.value},
-                             {"half_width_95", Number(e.rules[0].dc_gain.half_width_95)}};
-  if (!e.undetermined.empty()) doc->extra["undetermined"] = e.undetermined;
-  if (!e.warnings.empty()) doc->extra["warnings"] = e.warnings;
-  if (!e.notes.empty()) doc->extra["notes"] = e.notes;
+  *doc = model::ToModelDocument(e);
   if (!args.as_json) {
     std::cout << "structure: " << e.structure.Describe() << "\n  " << e.reason << "\n";
     PrintFit("fit", e.fit);
-    std::cout << "  held-out RMSE " << FormatNumber(e.held_out_rmse_mm, 4)
-              << " mm; noise estimate " << FormatNumber(e.noise_std_mm, 4) << " mm; dead time "
+    std::cout << "  held-out RMSE " << FormatNumber(e.held_out_rmse_mm, 4) << " mm; noise estimate "
+              << FormatNumber(e.noise_std_mm, 4) << " mm; dead time "
               << FormatNumber(e.delay_s.value, 4) << " +- "
               << FormatNumber(e.delay_s.half_width_95, 3) << " s\n";
     Table table({"rule V", "DC gain mm/V", "+- 95 %", "poles"});
     for (size_t i = 0; i < e.rules.size(); ++i) {
       std::string poles;
-      for (const auto& p : e.rules[i].poles) poles += (poles.empty() ? "" : "  ") + FormatComplex(p, 4);
+      for (const auto& p : e.rules[i].poles)
+        poles += (poles.empty() ? "" : "  ") + FormatComplex(p, 4);
       table.AddRow({FormatNumber(e.rules[i].knot_V, 4), FormatNumber(e.rules[i].dc_gain.value, 5),
                     FormatNumber(e.rules[i].dc_gain.half_width_95, 3), poles});
     }
