@@ -1090,6 +1090,56 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
   }
   result.held_out_rmse_mm = current_held_out;
 
+  // The dead time's interval from the profile of the fit: the chosen structure refitted
+  // with T fixed every half second from 0 to the largest (the rest free), and the interval
+  // every T whose rise in the sum of squares stays within the chi-square(1) 95 % quantile
+  // (3.84) of the residual variance, inflated by (1 + rho) / (1 - rho) for residuals
+  // correlated at lag one (rho). A zero trades off against T along a ridge of the cost
+  // that the Jacobian at the optimum does not see: its interval came out from 0.1 s to
+  // 80 s wide and covered the truth in 13 of 20 noise draws (bench/delay_coverage).
+  std::optional<std::pair<double, double>> delay_profile_s;
+  if (!options.fixed_delay_s && problem.max_delay_s > 0.0) {
+    const Layout layout{current, problem.w_min};
+    std::vector<double> residual(Count(usable));
+    const double ssr_here = OutputError(
+        problem, layout.Model(current_all.data(), problem.rest_band_V), usable, residual.data());
+    double lag = 0.0, zero = 0.0;
+    for (size_t k = 0; k < residual.size(); ++k) {
+      zero += residual[k] * residual[k];
+      if (k > 0) lag += residual[k] * residual[k - 1];
+    }
+    const double rho = std::clamp(zero > 0.0 ? lag / zero : 0.0, 0.0, 0.95);
+    std::vector<double> grid;
+    const int steps = static_cast<int>(std::ceil(problem.max_delay_s / 0.5));
+    for (int i = 0; i <= steps; ++i)
+      grid.push_back(
+          std::min(problem.max_delay_s * i / steps + 0.5 * problem.dt_s, problem.max_delay_s));
+    Problem fixed = problem;
+    fixed.max_iterations = std::min(problem.max_iterations, 5);
+    std::vector<double> ssr(grid.size(), kInf);
+    double least = ssr_here;
+    for (size_t i = 0; i < grid.size(); ++i) {
+      fixed.fixed_delay_s = grid[i];
+      std::vector<double> start = current_all;
+      start[0] = grid[i];
+      try {
+        ssr[i] = Fit(fixed, layout, usable, std::move(start)).ssr;
+        selector.CountFit();
+        least = std::min(least, ssr[i]);
+      } catch (const InputError&) {
+      }
+    }
+    const double allowed =
+        3.84 * least / static_cast<double>(residual.size()) * (1 + rho) / (1 - rho);
+    double lo = current_all[0], hi = current_all[0];
+    for (size_t i = 0; i < grid.size(); ++i)
+      if (ssr[i] - least <= allowed) {
+        lo = std::min(lo, grid[i] - 0.25);
+        hi = std::max(hi, grid[i] + 0.25);
+      }
+    delay_profile_s = {std::max(lo, 0.0), std::min(hi, problem.max_delay_s)};
+  }
+
   // Chosen on the coarse grid: refitted at the full rate, the dead time rescanned there
   // within a coarse sample of where the coarse fit put it (a step is seen there up to
   // factor - 1 samples late, and the premise's delay jumps at every full-rate sample).
@@ -1206,6 +1256,9 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
     return e;
   };
   result.delay_s = estimate(0, "delay_s");
+  if (delay_profile_s)
+    result.delay_s.half_width_95 = std::max(result.delay_s.value - delay_profile_s->first,
+                                            delay_profile_s->second - result.delay_s.value);
   for (int j = 0; j < p; ++j)
     if (!determined[static_cast<size_t>(j)]) result.undetermined.push_back(layout.ParameterName(j));
   for (int r = 0; r < layout.Rules(); ++r) {

@@ -134,6 +134,9 @@ struct GlobalEstimate {
   FitFigures fit;  // in sample, every fitted sample
   double held_out_rmse_mm = 0.0;
   double noise_std_mm = 0.0;  // sqrt(SSR / (N - p))
+  // The dead time; its 95 % interval from the profile of the fit over T (the chosen
+  // structure refitted with T fixed every half second), not the Jacobian, which misses
+  // the ridge along which a zero trades off against T.
   ParameterEstimate delay_s;
   std::vector<RuleReport> rules;
   std::vector<std::string> undetermined;  // parameters the data do not determine

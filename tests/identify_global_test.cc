@@ -45,6 +45,9 @@ TEST(IdentifyGlobal, ReturnsAStableModelWithFiniteIntervalsAndItsReason) {
   for (double z = 0.0; z <= 8.0; z += 0.25)
     EXPECT_TRUE(IsStable(FrozenModelAt(e.model, z))) << "z = " << z;
   EXPECT_TRUE(std::isfinite(e.delay_s.half_width_95));
+  // The dead time's interval (the profile of the fit over T) covers the plant's 0.6 s.
+  EXPECT_LE(std::abs(e.delay_s.value - 0.6), e.delay_s.half_width_95)
+      << e.delay_s.value << " +- " << e.delay_s.half_width_95;
   for (const RuleReport& rule : e.rules) EXPECT_TRUE(std::isfinite(rule.dc_gain.half_width_95));
   EXPECT_TRUE(std::isfinite(e.held_out_rmse_mm));
   EXPECT_NE(e.reason.find("held-out"), std::string::npos) << e.reason;
