@@ -105,6 +105,10 @@ struct GlobalIdentifyOptions {
   double max_delay_s = 10.0;
   std::optional<double> fixed_delay_s;  // the dead time, when known
   int max_iterations = 60;              // per fit
+  // Dense data: the structure is chosen on every f-th sample, f at most this (1: every
+  // sample). If the result stays above three times the noise (estimated from the data's
+  // second differences), the choice is made again on every sample.
+  int max_selection_factor = 5;
   int correlation_lags = 25;
   // Samples with t_s in [first, second) are simulated but never fitted (diagnosis's
   // held-out samples).
