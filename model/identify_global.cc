@@ -436,26 +436,36 @@ FitResult Fit(const Problem& problem, const Layout& layout, const Mask& mask,
   return result;
 }
 
-// The best fit with the dead time fixed at each of `delays_s` in turn, the rest free and
-// started from `start`, at most `iterations` each; an empty theta if none could be
-// fitted. `fits` counts the fits made.
-FitResult BestOverDelays(const Problem& problem, const Layout& layout, const Mask& mask,
-                         const std::vector<double>& start, const std::vector<double>& delays_s,
-                         int iterations, int* fits) {
+// Fits with the dead time fixed at each of `delays_s` in turn, the rest free and started
+// from `start`, at most `iterations` each; a failed fit has an empty theta and ssr +inf.
+// `fits` counts the fits made.
+std::vector<FitResult> FitsOverDelays(const Problem& problem, const Layout& layout,
+                                      const Mask& mask, const std::vector<double>& start,
+                                      const std::vector<double>& delays_s, int iterations,
+                                      int* fits) {
   Problem fixed = problem;
   fixed.max_iterations = std::min(problem.max_iterations, iterations);
-  FitResult best;
-  for (double delay_s : delays_s) {
-    fixed.fixed_delay_s = std::clamp(delay_s, 0.0, problem.max_delay_s);
+  std::vector<FitResult> out(delays_s.size());
+  for (size_t i = 0; i < delays_s.size(); ++i) {
+    fixed.fixed_delay_s = std::clamp(delays_s[i], 0.0, problem.max_delay_s);
     std::vector<double> theta = start;
     theta[0] = *fixed.fixed_delay_s;
     try {
-      FitResult fit = Fit(fixed, layout, mask, std::move(theta));
+      out[i] = Fit(fixed, layout, mask, std::move(theta));
       ++*fits;
-      if (fit.ssr < best.ssr) best = std::move(fit);
     } catch (const InputError&) {
     }
   }
+  return out;
+}
+
+// The best of FitsOverDelays (an empty theta if none could be fitted).
+FitResult BestOverDelays(const Problem& problem, const Layout& layout, const Mask& mask,
+                         const std::vector<double>& start, const std::vector<double>& delays_s,
+                         int iterations, int* fits) {
+  FitResult best;
+  for (FitResult& fit : FitsOverDelays(problem, layout, mask, start, delays_s, iterations, fits))
+    if (fit.ssr < best.ssr) best = std::move(fit);
   return best;
 }
 
@@ -693,7 +703,7 @@ class Selector {
   }
 
   int fits() const { return fits_; }
-  void CountFit() { ++fits_; }
+  void CountFits(int count = 1) { fits_ += count; }
 
  private:
   const Problem& problem_;
@@ -988,7 +998,7 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
       const Layout to{s, problem.w_min};
       try {
         FitResult fit = Fit(problem, to, usable, Transfer(from, current_all, to));
-        selector.CountFit();
+        selector.CountFits();
         if (fit.ssr < least) {
           least = fit.ssr;
           best_split = s;
@@ -1035,7 +1045,7 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
                          DelayGrid(best.theta[0], 1.0, problem.dt_s, problem.dt_s), 5, &fits);
       if (fine.ssr < best.ssr) best = std::move(fine);
     }
-    for (int i = 0; i < fits; ++i) selector.CountFit();
+    selector.CountFits(fits);
     if (!best.theta.empty()) {
       std::vector<double> fitted;
       StructureTrial trial = selector.Evaluate("dead time", current, {best.theta}, &fitted);
@@ -1116,26 +1126,17 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
     for (int i = 0; i <= steps; ++i)
       grid.push_back(
           std::min(problem.max_delay_s * i / steps + 0.5 * problem.dt_s, problem.max_delay_s));
-    Problem fixed = problem;
-    fixed.max_iterations = std::min(problem.max_iterations, 5);
-    std::vector<double> ssr(grid.size(), kInf);
+    int fits = 0;
+    const std::vector<FitResult> profile =
+        FitsOverDelays(problem, layout, usable, current_all, grid, 5, &fits);
+    selector.CountFits(fits);
     double least = ssr_here;
-    for (size_t i = 0; i < grid.size(); ++i) {
-      fixed.fixed_delay_s = grid[i];
-      std::vector<double> start = current_all;
-      start[0] = grid[i];
-      try {
-        ssr[i] = Fit(fixed, layout, usable, std::move(start)).ssr;
-        selector.CountFit();
-        least = std::min(least, ssr[i]);
-      } catch (const InputError&) {
-      }
-    }
+    for (const FitResult& fit : profile) least = std::min(least, fit.ssr);
     const double allowed =
         3.84 * least / static_cast<double>(residual.size()) * (1 + rho) / (1 - rho);
     double lo = current_all[0], hi = current_all[0];
     for (size_t i = 0; i < grid.size(); ++i)
-      if (ssr[i] - least <= allowed) {
+      if (profile[i].ssr - least <= allowed) {
         lo = std::min(lo, grid[i] - 0.25);
         hi = std::max(hi, grid[i] + 0.25);
       }
@@ -1165,7 +1166,7 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
         current_all = refined.theta;
     } catch (const InputError&) {
     }
-    for (int i = 0; i < fits; ++i) selector.CountFit();
+    selector.CountFits(fits);
     result.notes.push_back("structure chosen on every " + std::to_string(factor) +
                            "th sample, refitted on every sample");
   }
