@@ -24,6 +24,8 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 // Candidates within this factor of the best held-out error count as equally good; the
 // one with fewest parameters wins.
 constexpr double kHeldOutTolerance = 1.02;
+// The lightest damping ratio a fitted pole pair may have (the seed's 8 V model has 0.013).
+constexpr double kMinDamping = 1e-3;
 // Samples the structure is chosen on, at least, when the data are denser (Decimate).
 constexpr size_t kSelectionSamples = 4000;
 // A fold starts from the all-data fit, close to its own optimum: few iterations suffice.
@@ -127,9 +129,12 @@ struct Layout {
     // pair can still put one root far below it: a near-integrator that absorbs drift or
     // an asymmetry as a huge DC gain. Such a root is held at w_min (the cost is flat
     // below it, so the fit cannot use it).
+    // Likewise a complex pair's damping ratio c1 / (2 sqrt(c0)) is held at kMinDamping or
+    // above: the box bound on c1 alone let a pair ring with a damping of 3e-6.
     for (int q = 0; q < s.num_poles / 2; ++q) {
       double& c1 = out[static_cast<size_t>(2 * q)];
       double& c0 = out[static_cast<size_t>(2 * q + 1)];
+      c1 = std::max(c1, 2 * kMinDamping * std::sqrt(c0));
       const double disc = c1 * c1 - 4 * c0;
       if (disc < 0) continue;
       const double slow = 2 * c0 / (c1 + std::sqrt(disc)), fast = c0 / slow;
