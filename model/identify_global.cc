@@ -1292,8 +1292,11 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
     result.warnings.push_back("the dead time is not determined: " + Volts(result.delay_s.value) +
                               " +- " + Volts(result.delay_s.half_width_95) + " s");
   if (result.plateau_input && !result.levels_V.empty()) {
+    std::string sources;  // the recordings, named in the warnings below
+    for (const Series& series : full.series)
+      sources += (sources.empty() ? "" : ", ") + series.source;
     if (result.levels_V.size() == 1)
-      result.warnings.push_back("one voltage level (" + VoltList(result.levels_V) +
+      result.warnings.push_back(sources + ": one voltage level (" + VoltList(result.levels_V) +
                                 "): the model is linear, and every other voltage is "
                                 "extrapolated from it");
     const auto& k = current.knots_V;
@@ -1322,13 +1325,18 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
       for (const auto& pole : Poles(rule.tf)) slowest_s = std::max(slowest_s, -1.0 / pole.real());
     for (const VoltageLevel& level : merged.levels) {
       double held_s = 0.0;
+      std::string where;  // the recordings that hold the level
       for (const Plateau& plateau : merged.plateaus)
         if (plateau.level >= 0 &&
             std::abs(merged.levels[static_cast<size_t>(plateau.level)].level_V - level.level_V) <
-                1e-12)
+                1e-12) {
           held_s += plateau.t_end_s - plateau.t_start_s;
+          const std::string& source = full.series[plateau.recording].source;
+          if (where.find(source) == std::string::npos)
+            where += (where.empty() ? "" : ", ") + source;
+        }
       if (held_s < slowest_s)
-        result.warnings.push_back("level " + Volts(level.level_V) + " V is held for " +
+        result.warnings.push_back(where + ": level " + Volts(level.level_V) + " V is held for " +
                                   Volts(held_s) +
                                   " s in all, less than the slowest time constant (" +
                                   Volts(slowest_s) + " s): its gain there is extrapolated");

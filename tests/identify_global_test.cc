@@ -88,7 +88,8 @@ TEST(IdentifyGlobal, SaysWhatTheDataDoNotShow) {
   const GlobalEstimate e = IdentifyGlobalTs({one});
   ASSERT_EQ(e.model.rules.size(), 1u);
   bool said = false;
-  for (const std::string& w : e.warnings) said = said || w.find("one voltage level") == 0;
+  for (const std::string& w : e.warnings)
+    said = said || w.rfind("one-level.csv: one voltage level", 0) == 0;  // names the recording
   EXPECT_TRUE(said);
 }
 
