@@ -30,6 +30,13 @@ constexpr double kMinDamping = 1e-3;
 constexpr size_t kSelectionSamples = 4000;
 // A fold starts from the all-data fit, close to its own optimum: few iterations suffice.
 constexpr int kFoldIterations = 20;
+// Starts of a structure without one of its own (Selector::ScreenedStarts): time scales
+// tried, iterations each start gets before the best kScreenKept go on.
+constexpr int kGenericTimeScales = 4;
+constexpr int kScreenIterations = 8;
+constexpr size_t kScreenKept = 2;
+// "No dead time given" to ScreenedStarts and GenericStarts.
+constexpr double kNoDelay = std::numeric_limits<double>::quiet_NaN();
 
 std::string Volts(double v) {
   char text[32];
@@ -170,8 +177,11 @@ struct Layout {
     std::vector<LocalModel> rules;
     for (int r = 0; r < Rules(); ++r)
       rules.push_back({s.knots_V[static_cast<size_t>(r)], Rule(theta, r), {}});
-    TsModel model = MakeTsModelOnLevels(std::move(rules), s.premise, rest_band_V);
-    model.scheduling_delay_s = theta[0];
+    const bool parallel = s.realisation == TsRealisation::kParallel;
+    TsModel model = MakeTsModelOnLevels(
+        std::move(rules), parallel ? SchedulingVariable::kAbsVoltage : s.premise, rest_band_V);
+    model.scheduling_delay_s = parallel ? 0.0 : theta[0];
+    model.realisation = s.realisation;
     return model;
   }
 
@@ -321,6 +331,9 @@ double OutputError(const Problem& problem, const TsModel& model, const Mask& mas
 // jump in words.
 std::string SwitchingProblem(const TsModel& model, const Problem& problem,
                              std::vector<double> levels_V, double noise_mm) {
+  // Parallel rules do not switch: each is a stable linear system driven by a bounded
+  // share of the voltage, and a jump moves shares from one to the other.
+  if (model.realisation == TsRealisation::kParallel) return "";
   levels_V.push_back(0.0);
   std::sort(levels_V.begin(), levels_V.end());
   levels_V.erase(std::unique(levels_V.begin(), levels_V.end()), levels_V.end());
@@ -441,9 +454,13 @@ FitResult Fit(const Problem& problem, const Layout& layout, const Mask& mask,
   return result;
 }
 
-// Fits with the dead time fixed at each of `delays_s` in turn, the rest free and started
-// from `start`, at most `iterations` each; a failed fit has an empty theta and ssr +inf.
-// `fits` counts the fits made.
+// Fits with the dead time fixed at each of `delays_s` in turn, the rest free, at most
+// `iterations` each; a failed fit has an empty theta and ssr +inf. `fits` counts the fits
+// made. By continuation: the grid is walked outwards from the point nearest `start`'s dead
+// time, each fit started from its neighbour's result (the first from `start`). A dead
+// time far from the start's needs other dynamics to go with it (a second lag, a zero), and
+// a few iterations from the start's dynamics do not reach them: the profile then rises
+// with the distance from the start and only confirms where it began.
 std::vector<FitResult> FitsOverDelays(const Problem& problem, const Layout& layout,
                                       const Mask& mask, const std::vector<double>& start,
                                       const std::vector<double>& delays_s, int iterations,
@@ -451,16 +468,32 @@ std::vector<FitResult> FitsOverDelays(const Problem& problem, const Layout& layo
   Problem fixed = problem;
   fixed.max_iterations = std::min(problem.max_iterations, iterations);
   std::vector<FitResult> out(delays_s.size());
-  for (size_t i = 0; i < delays_s.size(); ++i) {
-    fixed.fixed_delay_s = std::clamp(delays_s[i], 0.0, problem.max_delay_s);
-    std::vector<double> theta = start;
-    theta[0] = *fixed.fixed_delay_s;
-    try {
-      out[i] = Fit(fixed, layout, mask, std::move(theta));
-      ++*fits;
-    } catch (const InputError&) {
+  if (delays_s.empty()) return out;
+  std::vector<size_t> order(delays_s.size());
+  std::iota(order.begin(), order.end(), 0);
+  std::sort(order.begin(), order.end(),
+            [&](size_t a, size_t b) { return delays_s[a] < delays_s[b]; });
+  size_t nearest = 0;
+  for (size_t i = 1; i < order.size(); ++i)
+    if (std::abs(delays_s[order[i]] - start[0]) < std::abs(delays_s[order[nearest]] - start[0]))
+      nearest = i;
+  auto walk = [&](long from, long to, long step) {
+    std::vector<double> from_theta = start;
+    for (long i = from; i != to; i += step) {
+      const size_t index = order[static_cast<size_t>(i)];
+      fixed.fixed_delay_s = std::clamp(delays_s[index], 0.0, problem.max_delay_s);
+      std::vector<double> theta = from_theta;
+      theta[0] = *fixed.fixed_delay_s;
+      try {
+        out[index] = Fit(fixed, layout, mask, std::move(theta));
+        ++*fits;
+        from_theta = out[index].theta;
+      } catch (const InputError&) {
+      }
     }
-  }
+  };
+  walk(static_cast<long>(nearest), static_cast<long>(order.size()), 1);
+  walk(static_cast<long>(nearest) - 1, -1, -1);
   return out;
 }
 
@@ -630,29 +663,36 @@ class Selector {
   // same basin of the cost, so that folds compare structures rather than local minima. `all`
   // receives the all-data parameters.
   StructureTrial Evaluate(const std::string& stage, const GlobalStructure& s,
-                          const std::vector<std::vector<double>>& starts,
-                          std::vector<double>* all) {
+                          const std::vector<std::vector<double>>& starts, std::vector<double>* all,
+                          bool also_screened = false) {
     StructureTrial trial{stage, s, kInf, ""};
     const Layout layout{s, problem_.w_min};
     try {
       FitResult best;
       std::vector<std::vector<double>> tries = starts;
-      if (starts.empty()) {
-        tries.push_back(Start(s, -1));
-        for (auto& generic : GenericStarts(s)) tries.push_back(std::move(generic));
-      }
-      for (auto& start : tries) {
+      // Screened starts (best first, after any given ones) are fitted until kScreenKept
+      // switch plausibly.
+      const size_t given = starts.size();
+      // With given starts, the screened ones take the first one's dead time.
+      const double delay_s = starts.empty() ? kNoDelay : starts.front()[0];
+      if (starts.empty() || also_screened)
+        for (auto& start : ScreenedStarts(s, delay_s)) tries.push_back(std::move(start));
+      size_t plausible = 0;  // among the screened starts
+      for (size_t i = 0; i < tries.size(); ++i) {
+        auto& start = tries[i];
+        if (i >= given && plausible >= kScreenKept) break;
         try {
           FitResult fit = Fit(problem_, layout, usable_, std::move(start));
           ++fits_;
-          if (!(fit.ssr < best.ssr)) continue;
           const double noise_mm = std::sqrt(fit.ssr / static_cast<double>(fit.samples));
           const std::string swing = SwitchingProblem(
               layout.Model(fit.theta.data(), problem_.rest_band_V), problem_, levels_V_, noise_mm);
-          if (swing.empty())
-            best = std::move(fit);
-          else
+          if (!swing.empty()) {
             trial.problem = swing;
+            continue;
+          }
+          if (i >= given) ++plausible;
+          if (fit.ssr < best.ssr) best = std::move(fit);
         } catch (const InputError& e) {
           trial.problem = e.what();
         }
@@ -681,30 +721,119 @@ class Selector {
     return trial;
   }
 
-  // Starts that do not depend on the linear fit: real poles at the time scales of a
-  // slow actuator (tau_fast, tau_slow), a well-damped fast pair for higher orders, no
-  // zeros; the gains and dead time of the linear start.
-  std::vector<std::vector<double>> GenericStarts(const GlobalStructure& s) {
+  // The linear start and the generic ones, each fitted for kScreenIterations on all
+  // usable data, best first by the sum of squares, to be fitted to convergence until
+  // kScreenKept switch plausibly (Evaluate). Most starts lose, and full fits from every
+  // one would spend most of the time on them.
+  std::vector<std::vector<double>> ScreenedStarts(const GlobalStructure& s,
+                                                  double delay_s = kNoDelay) {
+    const Layout layout{s, problem_.w_min};
+    Problem screen = problem_;
+    screen.max_iterations = std::min(problem_.max_iterations, kScreenIterations);
+    std::vector<FitResult> screened;
+    std::vector<std::vector<double>> candidates = GenericStarts(s, delay_s);
+    candidates.insert(candidates.begin(), Start(s, -1));
+    if (!std::isnan(delay_s)) candidates.front()[0] = delay_s;
+    for (auto& start : candidates) {
+      try {
+        // The dead time held at the start's: a free one runs to whichever bound the
+        // start's dynamics favour before they have adapted.
+        if (!problem_.fixed_delay_s) screen.fixed_delay_s = start[0];
+        screened.push_back(Fit(screen, layout, usable_, std::move(start)));
+        ++fits_;
+      } catch (const InputError&) {
+      }
+    }
+    std::sort(screened.begin(), screened.end(),
+              [](const FitResult& a, const FitResult& b) { return a.ssr < b.ssr; });
+    std::vector<std::vector<double>> out;
+    for (FitResult& fit : screened) out.push_back(std::move(fit.theta));
+    return out;
+  }
+
+  // Starts that do not depend on the linear fit, spread over the time scales the data can
+  // show: real poles at tau and 10 tau for four tau log-spaced from three samples to a
+  // twentieth of the longest recording (a well-damped fast pair for higher orders, no
+  // zeros), each with the linear start's dead time, none and half the largest (only the given
+  // one, when there is one); the gains a static map
+  // of the data (StaticGains). A fixed set of seconds suits one actuator: a HASEL settles
+  // in a fraction of a second, a hydrogel beam in minutes, and a start at the wrong time
+  // scale, or the wrong dead time, settles in a basin of its own (a 19 s oscillation with
+  // a 7 s dead time, on a HASEL staircase of 14 s pulses).
+  std::vector<std::vector<double>> GenericStarts(const GlobalStructure& s,
+                                                 double only_delay_s = kNoDelay) {
     std::vector<std::vector<double>> out;
     const Layout layout{s, problem_.w_min};
-    for (const auto& [fast_s, slow_s] :
-         std::vector<std::pair<double, double>>{{3.0, 30.0}, {10.0, 100.0}, {1.0, 10.0}}) {
-      std::vector<double> theta = Start(s, -1);
-      for (int d = 0; d < layout.DynamicsKnots(); ++d) {
-        double* p = theta.data() + 1 + layout.Rules() + d * layout.PerDynamics();
-        int j = 0;
-        for (int q = 0; q < s.num_poles / 2; ++q, j += 2) {
-          const double a = q == 0 ? 1.0 / fast_s : problem_.w_max / 8,
-                       b = q == 0 ? 1.0 / slow_s : problem_.w_max / 8;
-          p[j] = std::log(a + b);
-          p[j + 1] = std::log(a * b);
+    const std::vector<double> gains = StaticGains(s);
+    const double shortest_s = 3.0 * problem_.dt_s,
+                 longest_s = std::max(shortest_s, 0.05 * 0.5 / problem_.w_min);
+    const std::vector<double> linear = Start(s, -1);
+    for (int i = 0; i < kGenericTimeScales; ++i) {
+      const double fast_s =
+          shortest_s * std::pow(longest_s / shortest_s, i / (kGenericTimeScales - 1.0));
+      const double slow_s = std::min(10.0 * fast_s, 1.0 / problem_.w_min);
+      const std::vector<double> delays_s =
+          !std::isnan(only_delay_s)
+              ? std::vector<double>{only_delay_s}
+              : std::vector<double>{linear[0], 0.5 * problem_.dt_s,
+                                    0.5 * problem_.max_delay_s + 0.5 * problem_.dt_s};
+      for (const double delay_s : delays_s) {
+        std::vector<double> theta = linear;
+        theta[0] = std::min(delay_s, problem_.max_delay_s);
+        for (int r = 0; r < layout.Rules(); ++r)
+          if (std::isfinite(gains[static_cast<size_t>(r)]))
+            theta[static_cast<size_t>(1 + r)] = gains[static_cast<size_t>(r)];
+        for (int d = 0; d < layout.DynamicsKnots(); ++d) {
+          double* p = theta.data() + 1 + layout.Rules() + d * layout.PerDynamics();
+          int j = 0;
+          for (int q = 0; q < s.num_poles / 2; ++q, j += 2) {
+            const double a = q == 0 ? 1.0 / fast_s : problem_.w_max / 8,
+                         b = q == 0 ? 1.0 / slow_s : problem_.w_max / 8;
+            p[j] = std::log(a + b);
+            p[j + 1] = std::log(a * b);
+          }
+          if (s.num_poles % 2 == 1)
+            p[j++] = std::log(s.num_poles == 1 ? 1.0 / slow_s : 1.0 / fast_s);
+          for (int z = 0; z < s.num_zeros; ++z) p[j + z] = 0.0;
         }
-        if (s.num_poles % 2 == 1) p[j++] = std::log(s.num_poles == 1 ? 1.0 / slow_s : 1.0 / fast_s);
-        for (int i = 0; i < s.num_zeros; ++i) p[j + i] = 0.0;
+        out.push_back(std::move(theta));
       }
-      out.push_back(std::move(theta));
     }
     return out;
+  }
+
+  // Each rule's gain as a static map of the data: the least-squares ratio of deflection
+  // to voltage over the usable samples, each weighted by its voltage's membership of the
+  // rule (linear between knots, shoulders beyond). A dead zone comes out as gains near 0
+  // at the low knots, where one linear model would spread one gain over every voltage.
+  // NaN where no sample weighs on a rule.
+  std::vector<double> StaticGains(const GlobalStructure& s) const {
+    const std::vector<double>& k = s.knots_V;
+    std::vector<double> uy(k.size(), 0.0), uu(k.size(), 0.0);
+    for (size_t r = 0; r < problem_.series.size(); ++r) {
+      const Series& series = problem_.series[r];
+      for (size_t i = 0; i < series.u.size(); ++i) {
+        if (!usable_[r][i]) continue;
+        const double u = series.u[i], z = std::abs(u);
+        size_t a = 0, b = 0;
+        double w = 0.0;
+        if (z >= k.back()) {
+          a = b = k.size() - 1;
+        } else if (z > k.front()) {
+          b = static_cast<size_t>(std::upper_bound(k.begin(), k.end(), z) - k.begin());
+          a = b - 1;
+          w = (z - k[a]) / (k[b] - k[a]);
+        }
+        uy[a] += (1 - w) * u * series.y[i];
+        uu[a] += (1 - w) * u * u;
+        uy[b] += w * u * series.y[i];
+        uu[b] += w * u * u;
+      }
+    }
+    std::vector<double> gains(k.size(), std::numeric_limits<double>::quiet_NaN());
+    for (size_t r = 0; r < k.size(); ++r)
+      if (uu[r] > 0.0) gains[r] = uy[r] / uu[r];
+    return gains;
   }
 
   int fits() const { return fits_; }
@@ -814,6 +943,8 @@ std::string GlobalStructure::Describe() const {
   text += std::to_string(knots_V.size()) + " rules at " + VoltList(knots_V) + ", ";
   text += dynamics_knots_V.size() == 1 ? std::string("one set of dynamics")
                                        : "dynamics at " + VoltList(dynamics_knots_V);
+  if (realisation == TsRealisation::kParallel)
+    return text + ", parallel rules (each driven by its share of u)";
   return text + ", premise " + PremiseText(premise);
 }
 
@@ -834,6 +965,8 @@ bool GlobalIdentifyOptions::IsValid(std::string* error) const {
   if (max_selection_factor < 1) return fail("max_selection_factor must be >= 1");
   if (premise && *premise == SchedulingVariable::kVoltage)
     return fail("premise: |u(t)|, |u(t - T)| or held |u|");
+  if (premise && realisation == TsRealisation::kParallel)
+    return fail("parallel rules take their premise as the voltage is applied: no premise to fix");
   for (const auto& [a, b] : excluded_spans_s)
     if (!std::isfinite(a) || !std::isfinite(b) || !(a < b))
       return fail("an excluded span needs finite times with start < end");
@@ -944,16 +1077,19 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
   current.knots_V = knots;
   current.dynamics_knots_V = {current.knots_V.front()};
   current.premise = options.premise.value_or(SchedulingVariable::kAbsVoltageDelayed);
+  current.realisation = options.realisation.value_or(TsRealisation::kFrozen);
   std::vector<double> current_all;  // the current structure fitted on all usable data
   double current_held_out = kInf;
   std::vector<std::string> reasons;
 
   auto run_stage = [&](const std::string& stage, const std::vector<GlobalStructure>& candidates,
-                       const std::vector<std::vector<std::vector<double>>>& starts) {
+                       const std::vector<std::vector<std::vector<double>>>& starts,
+                       const std::vector<bool>& also_screened = {}) {
     std::vector<StructureTrial> trials;
     std::vector<std::vector<double>> fits(candidates.size());
     for (size_t i = 0; i < candidates.size(); ++i) {
-      trials.push_back(selector.Evaluate(stage, candidates[i], starts[i], &fits[i]));
+      trials.push_back(selector.Evaluate(stage, candidates[i], starts[i], &fits[i],
+                                         i < also_screened.size() && also_screened[i]));
       result.trials.push_back(trials.back());
     }
     const int chosen = Choose(trials);
@@ -970,8 +1106,9 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
       for (size_t i = 0; i < trials.size(); ++i) {
         const GlobalStructure& t = trials[i].structure;
         text += " " +
-                (stage == "premise"
-                     ? std::string(PremiseText(t.premise))
+                (stage == "premise" ? std::string(PremiseText(t.premise))
+                 : stage == "realisation"
+                     ? std::string(TsRealisationName(t.realisation))
                      : std::to_string(t.num_poles) + "p" + std::to_string(t.num_zeros) + "z") +
                 " " +
                 (std::isfinite(trials[i].held_out_rmse_mm) ? Volts(trials[i].held_out_rmse_mm)
@@ -1031,6 +1168,16 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
     current = best_split;
     current_held_out = trial.held_out_rmse_mm;
     current_all = fitted;
+  }
+  // The realisation, once the dynamics may differ between rules (with one set of
+  // dynamics both are the same Hammerstein-like model): the rules switched as one frozen
+  // model, or run in parallel, each driven by its share of the voltage.
+  if (current.dynamics_knots_V.size() > 1 && !options.realisation) {
+    GlobalStructure parallel = current;
+    parallel.realisation = TsRealisation::kParallel;
+    // The parallel candidate also gets the generic starts: started only where the
+    // frozen fit ended, it stays in that fit's basin (its dead time among others).
+    run_stage("realisation", {current, parallel}, {{current_all}, {current_all}}, {false, true});
   }
   // The dead time trades off against a zero, and a fit started at the wrong dead time
   // settles in that basin. Its profile is scanned once the model is close to the data:
@@ -1094,7 +1241,8 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
     run_stage("orders", candidates, starts);
   }
   // 4. Premise, at the chosen structure (only matters with several rules).
-  if (current.knots_V.size() > 1 && !options.premise) {
+  if (current.knots_V.size() > 1 && !options.premise &&
+      current.realisation == TsRealisation::kFrozen) {
     std::vector<GlobalStructure> candidates;
     for (auto premise : {SchedulingVariable::kAbsVoltageDelayed, SchedulingVariable::kAbsVoltage,
                          SchedulingVariable::kAbsVoltageHeld}) {

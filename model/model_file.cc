@@ -331,6 +331,15 @@ class DocumentReader {
       for (const LocalModel& rule : model.rules)
         model.scheduling_delay_s = std::min(model.scheduling_delay_s, rule.tf.delay_s);
     }
+    // parallel: every rule driven by its share of the voltage (ts_fuzzy.h); frozen when
+    // absent (every model file written before parallel rules existed).
+    if (const auto it = scheduling.find("realisation"); it != scheduling.end()) {
+      const std::string name =
+          String(*it, "/scheduling/realisation", "expected \"frozen\" or \"parallel\"");
+      if (!ParseTsRealisation(name, &model.realisation))
+        Fail("/scheduling/realisation",
+             "unknown realisation " + Quoted(name) + " (expected \"frozen\" or \"parallel\")");
+    }
     const json& memberships = Required(scheduling, "memberships", "/scheduling",
                                        "expected one membership per local model");
     if (!memberships.is_array()) {
@@ -481,7 +490,8 @@ ordered_json OrderedForWriting(const json& document) {
     }
   }
   if (const auto it = document.find("scheduling"); it != document.end() && it->is_object()) {
-    out["scheduling"] = Ordered(*it, {"variable", "delay_s", "rest_band_V", "memberships"});
+    out["scheduling"] =
+        Ordered(*it, {"variable", "realisation", "delay_s", "rest_band_V", "memberships"});
     if (const auto m = it->find("memberships"); m != it->end() && m->is_array()) {
       for (std::size_t i = 0; i < m->size(); ++i) {
         out["scheduling"]["memberships"][i] = Ordered((*m)[i], {"shape", "params"});
@@ -542,6 +552,8 @@ json ModelToJson(const ModelDocument& document) {
       out["scheduling"]["rest_band_V"] = model.rest_band_V;
     if (model.scheduling == SchedulingVariable::kAbsVoltageDelayed)
       out["scheduling"]["delay_s"] = model.scheduling_delay_s;
+    if (model.realisation == TsRealisation::kParallel)
+      out["scheduling"]["realisation"] = TsRealisationName(model.realisation);
   }
   if (!document.augmentations.empty()) {
     json augmentations = json::array();

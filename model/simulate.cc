@@ -1,5 +1,6 @@
 #include "model/simulate.h"
 
+#include <algorithm>
 #include <bit>
 #include <cmath>
 #include <deque>
@@ -162,8 +163,8 @@ void RunUniform(const TsModel& model, double dt_s, std::span<const double> u,
   };
 
   Scheduler scheduler(model);
-  Vec x = InitialState(
-      OperatingPointAt(model, OperatingZ(scheduler, u_before, resolution_V)).ss, u_before);
+  Vec x = InitialState(OperatingPointAt(model, OperatingZ(scheduler, u_before, resolution_V)).ss,
+                       u_before);
   const long count = static_cast<long>(u.size());
   if (memberships) memberships->resize(u.size() * m);
 
@@ -226,6 +227,96 @@ void DispatchUniform(const TsModel& model, double dt_s, std::span<const double> 
   }
 }
 
+// kParallel (ts_fuzzy.h): every rule simulated alone on its share mu_i(z) u of the
+// voltage, the outputs added. The share is a held voltage like any other, so each rule's
+// simulation is the exact single-model one, dead time included.
+class ParallelShares {
+ public:
+  ParallelShares(const TsModel& model, double resolution_V)
+      : model_(model), scheduler_(model), resolution_V_(resolution_V) {}
+
+  // mu(z) for the voltage u (cached by z).
+  const std::vector<double>& Memberships(double voltage_V) {
+    const double z = OperatingZ(scheduler_, voltage_V, resolution_V_);
+    const uint64_t key = std::bit_cast<uint64_t>(z);
+    auto it = cache_.find(key);
+    if (it == cache_.end()) {
+      if (cache_.size() >= 32768) cache_.clear();
+      std::vector<double> mu;
+      NormalisedMemberships(model_, z, &mu);
+      it = cache_.emplace(key, std::move(mu)).first;
+    }
+    return it->second;
+  }
+
+ private:
+  const TsModel& model_;
+  Scheduler scheduler_;
+  double resolution_V_;
+  std::unordered_map<uint64_t, std::vector<double>> cache_;
+};
+
+// Options for rule i's simulation: the state before the first sample is its share of
+// the voltage before it.
+SimulationOptions RuleOptions(const SimulationOptions& options, double share) {
+  SimulationOptions rule = options;
+  rule.initial_voltage_V = share * options.initial_voltage_V;
+  return rule;
+}
+
+void ParallelUniform(const TsModel& model, double dt_s, std::span<const double> u,
+                     const SimulationOptions& options, double* y,
+                     std::vector<double>* memberships) {
+  const size_t m = model.rules.size(), n = u.size();
+  ParallelShares shares(model, options.scheduling_resolution_V);
+  const std::vector<double> before = shares.Memberships(options.initial_voltage_V);
+  std::vector<std::vector<double>> drive(m, std::vector<double>(n));
+  if (memberships) memberships->resize(n * m);
+  for (size_t k = 0; k < n; ++k) {
+    const std::vector<double>& mu = shares.Memberships(u[k]);
+    for (size_t i = 0; i < m; ++i) drive[i][k] = mu[i] * u[k];
+    if (memberships)
+      std::copy(mu.begin(), mu.end(), memberships->begin() + static_cast<long>(k * m));
+  }
+  // Rules with the same dynamics (equal denominators and dead times, proportional
+  // numerators: G_j = c G_i) are one linear system: G_i [drive_i + c drive_j]. A global fit
+  // whose dynamics change at few knots has many such rules.
+  std::vector<double> initial(m);
+  for (size_t i = 0; i < m; ++i) initial[i] = before[i] * options.initial_voltage_V;
+  std::vector<bool> merged(m, false);
+  for (size_t i = 0; i < m; ++i) {
+    if (merged[i]) continue;
+    const TransferFunction& gi = model.rules[i].tf;
+    for (size_t j = i + 1; j < m; ++j) {
+      const TransferFunction& gj = model.rules[j].tf;
+      if (merged[j] || gj.den != gi.den || gj.delay_s != gi.delay_s ||
+          gj.num.size() != gi.num.size() || gi.num.back() == 0.0)
+        continue;
+      const double c = gj.num.back() / gi.num.back();
+      bool proportional = true;
+      for (size_t q = 0; q < gi.num.size() && proportional; ++q)
+        proportional = std::abs(gj.num[q] - c * gi.num[q]) <=
+                       1e-12 * std::max(std::abs(gj.num[q]), std::abs(c * gi.num[q]));
+      if (!proportional) continue;
+      for (size_t k = 0; k < n; ++k) drive[i][k] += c * drive[j][k];
+      initial[i] += c * initial[j];
+      merged[j] = true;
+    }
+  }
+  std::fill(y, y + n, 0.0);
+  std::vector<double> part(n);
+  for (size_t i = 0; i < m; ++i) {
+    if (merged[i]) continue;
+    if (std::all_of(drive[i].begin(), drive[i].end(), [](double v) { return v == 0.0; }) &&
+        initial[i] == 0.0)
+      continue;  // a rule that never fires adds nothing
+    SimulationOptions rule = options;
+    rule.initial_voltage_V = initial[i];
+    DispatchUniform(SingleRule(model.rules[i].tf), dt_s, drive[i], rule, part.data(), nullptr);
+    for (size_t k = 0; k < n; ++k) y[k] += part[k];
+  }
+}
+
 }  // namespace
 
 // -----------------------------------------------------------------------------------------
@@ -236,6 +327,18 @@ void DispatchUniform(const TsModel& model, double dt_s, std::span<const double> 
 // -----------------------------------------------------------------------------------------
 
 struct StreamingSimulator::Impl {
+  // kParallel: one single-model simulator per rule, driven by its share.
+  std::vector<StreamingSimulator> rules;
+  std::unique_ptr<ParallelShares> shares;
+  std::vector<double> mu;
+
+  double StepParallel(double t_s, double voltage_V) {
+    mu = shares->Memberships(voltage_V);
+    double y = 0.0;
+    for (size_t i = 0; i < rules.size(); ++i) y += rules[i].Step(t_s, mu[i] * voltage_V);
+    return y;
+  }
+
   TsModel model;
   SimulationOptions options;
   Scheduler scheduler{model};
@@ -377,6 +480,13 @@ StreamingSimulator::StreamingSimulator(const TsModel& model, const SimulationOpt
   CheckResolution(options);
   impl_->model = model;
   impl_->options = options;
+  if (model.realisation == TsRealisation::kParallel) {
+    impl_->shares = std::make_unique<ParallelShares>(impl_->model, options.scheduling_resolution_V);
+    const std::vector<double> before = impl_->shares->Memberships(options.initial_voltage_V);
+    for (size_t i = 0; i < model.rules.size(); ++i)
+      impl_->rules.emplace_back(SingleRule(model.rules[i].tf), RuleOptions(options, before[i]));
+    return;
+  }
   for (const LocalModel& rule : model.rules)
     impl_->max_delay_s = std::max(impl_->max_delay_s, rule.tf.delay_s);
   if (model.scheduling == SchedulingVariable::kAbsVoltageDelayed)
@@ -387,11 +497,12 @@ StreamingSimulator::StreamingSimulator(StreamingSimulator&&) noexcept = default;
 StreamingSimulator& StreamingSimulator::operator=(StreamingSimulator&&) noexcept = default;
 
 double StreamingSimulator::Step(double t_s, double voltage_V) {
-  return impl_->Step(t_s, voltage_V);
+  return impl_->shares ? impl_->StepParallel(t_s, voltage_V) : impl_->Step(t_s, voltage_V);
 }
 
 const std::vector<double>& StreamingSimulator::memberships() const {
   static const std::vector<double> kNone;
+  if (impl_->shares) return impl_->mu;
   return impl_->point ? impl_->point->op.mu : kNone;
 }
 
@@ -418,6 +529,10 @@ std::vector<double> SimulateUniform(const TsModel& model, double dt_s,
       throw std::invalid_argument("non-finite voltage at sample " + std::to_string(k));
   std::vector<double> y(voltage_V.size());
   if (voltage_V.empty()) return y;
+  if (model.realisation == TsRealisation::kParallel) {
+    ParallelUniform(model, dt_s, voltage_V, options, y.data(), memberships);
+    return y;
+  }
   DispatchUniform(model, dt_s, voltage_V, options, y.data(), memberships);
   return y;
 }

@@ -140,6 +140,20 @@ bool ParseSchedulingVariable(const std::string& name, SchedulingVariable* variab
   return false;
 }
 
+const char* TsRealisationName(TsRealisation realisation) {
+  return realisation == TsRealisation::kParallel ? "parallel" : "frozen";
+}
+
+bool ParseTsRealisation(const std::string& name, TsRealisation* realisation) {
+  for (auto r : {TsRealisation::kFrozen, TsRealisation::kParallel}) {
+    if (name == TsRealisationName(r)) {
+      *realisation = r;
+      return true;
+    }
+  }
+  return false;
+}
+
 bool IsValid(const TsModel& model, std::string* error) {
   if (model.rules.empty()) return Fail(error, "T-S model has no rules");
   if (!std::isfinite(model.rest_band_V) || model.rest_band_V < 0.0)
@@ -160,6 +174,16 @@ bool IsValid(const TsModel& model, std::string* error) {
                              " differs from local model 0's order " + std::to_string(order) +
                              " (blending needs equal orders)");
     order = this_order;
+  }
+  if (model.realisation == TsRealisation::kParallel) {
+    if (model.scheduling != SchedulingVariable::kAbsVoltage &&
+        model.scheduling != SchedulingVariable::kVoltage)
+      return Fail(error,
+                  "parallel rules are scheduled on abs_voltage or voltage (each rule's share is "
+                  "delayed with the voltage through its own dead time)");
+    for (const LocalModel& rule : model.rules)
+      if (rule.tf.delay_s != model.rules.front().tf.delay_s)
+        return Fail(error, "parallel rules share one dead time");
   }
   return true;
 }
@@ -208,7 +232,31 @@ TsModel MakeTsModelOnLevels(std::vector<LocalModel> local_models, SchedulingVari
   return {scheduling, std::move(local_models), rest_band_V};
 }
 
+namespace {
+
+// kParallel: sum of mu_i G_i over the firing rules (one dead time, IsValid).
+TransferFunction ParallelSum(const TsModel& model, const std::vector<double>& mu) {
+  TransferFunction sum{{0.0}, {1.0}, model.rules.front().tf.delay_s};
+  for (size_t i = 0; i < model.rules.size(); ++i) {
+    if (mu[i] == 0.0) continue;
+    const TransferFunction& g = model.rules[i].tf;
+    std::vector<double> weighted = g.num;
+    for (double& c : weighted) c *= mu[i];
+    const std::vector<double> a = MultiplyPolynomials(sum.num, g.den),
+                              b = MultiplyPolynomials(weighted, sum.den);
+    std::vector<double> num(std::max(a.size(), b.size()), 0.0);
+    for (size_t j = 0; j < a.size(); ++j) num[num.size() - a.size() + j] += a[j];
+    for (size_t j = 0; j < b.size(); ++j) num[num.size() - b.size() + j] += b[j];
+    sum.num = std::move(num);
+    sum.den = MultiplyPolynomials(sum.den, g.den);
+  }
+  return sum;
+}
+
+}  // namespace
+
 TransferFunction BlendedTransferFunction(const TsModel& model, const std::vector<double>& mu) {
+  if (model.realisation == TsRealisation::kParallel) return ParallelSum(model, mu);
   const size_t order = static_cast<size_t>(Order(model.rules.front().tf));
   // Weighted sums of the real factors, the gain-normalised numerators, gains and delays.
   std::vector<std::vector<double>> factors;

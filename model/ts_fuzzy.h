@@ -24,6 +24,18 @@
 // and a step across a rule boundary does not ring (tests/ts_fuzzy_test.cc). At every
 // level the blend is exactly that level's local model.
 //
+// Realisation. kFrozen (the default, described above) switches one frozen model with the
+// operating point. kParallel runs every rule as its own linear system, driven by its share
+// of the voltage, and adds their outputs:
+//   y = sum_i G_i(s) [mu_i(z(t)) u(t)],   z = |u| (or u), each G_i with its dead time,
+// the premise read when the voltage is applied and its share delayed with it. On a voltage
+// held still both give sum_i mu_i K_i u. They differ when z moves: after a change the old
+// rule's share relaxes with the old rule's dynamics while the new rule's share rises with
+// its own, and the output is continuous without any re-expression of states. With equal
+// dynamics in every rule it is a Hammerstein model: the static map u -> sum_i mu_i K_i u,
+// then one linear system. The frozen model at z is the sum of the firing rules' transfer
+// functions (all rules share one dead time), whose order is the sum of theirs.
+//
 // Scheduling: z(t) = |u(t)| by default (the seed's rules are on |z| <= 5 and 5 < |z| <= 8);
 // z follows the applied voltage without the dead time: the operating point is set the
 // moment the voltage is applied. With kAbsVoltageHeld, a voltage inside the rest band
@@ -70,6 +82,10 @@ enum class SchedulingVariable { kAbsVoltage, kVoltage, kAbsVoltageHeld, kAbsVolt
 const char* SchedulingVariableName(SchedulingVariable variable);
 bool ParseSchedulingVariable(const std::string& name, SchedulingVariable* variable);
 
+enum class TsRealisation { kFrozen, kParallel };
+const char* TsRealisationName(TsRealisation realisation);
+bool ParseTsRealisation(const std::string& name, TsRealisation* realisation);
+
 struct LocalModel {
   double level_V = 0.0;  // voltage level at which the local model was identified
   TransferFunction tf;
@@ -82,6 +98,8 @@ struct TsModel {
   double rest_band_V = 0.0;  // kAbsVoltageHeld: |u| at or below this is rest
   // kAbsVoltageDelayed: the delay of the premise, s (finite, >= 0).
   double scheduling_delay_s = 0.0;
+  // kParallel: scheduling kAbsVoltage or kVoltage, and one dead time in every rule.
+  TsRealisation realisation = TsRealisation::kFrozen;
 };
 
 // The scheduling value z_k for a sequence of voltages (kAbsVoltageHeld has memory).
@@ -114,7 +132,8 @@ TsModel MakeTsModelOnLevels(std::vector<LocalModel> local_models,
                             SchedulingVariable scheduling = SchedulingVariable::kAbsVoltage,
                             double rest_band_V = 0.0);
 
-// The frozen model at memberships mu (the blend described above). Precondition:
+// The frozen model at memberships mu (the blend described above; kParallel: the sum of
+// mu_i G_i over the firing rules). Precondition:
 // IsValid(model), mu.size() == rules.size(), sum mu == 1.
 TransferFunction BlendedTransferFunction(const TsModel& model, const std::vector<double>& mu);
 

@@ -1,12 +1,14 @@
-// Global T-S identification (model/identify_global.h) on fresh plants of the independent
+// Global T-S identification (model/identify_global.h) on plants of the independent
 // T-S plant (ts_plant.h): fits on a staircase, scored on a fresh multilevel recording
 // against the noise-free deflection.
 //
-// Known gap (issue 12): on this plant family (each rule driven by its share of the input,
-// slow modes of 50-110 s against 80 s holds) the identifier does not yet meet the bar:
-// seed 101 predicts at 3.9 sigma with a dead time 3 s long, seed 202 at 21 sigma. The
-// tests are registered WILL_FAIL (tests/CMakeLists.txt) so that they run in every build
-// and show when the identifier reaches the bar: then they "fail" and WILL_FAIL goes.
+// Known gap (issue 12): on some draws of this plant family (each rule driven by its share
+// of the input, an S-shaped onset from two slow modes of 15-110 s, 80 s holds of 1 V
+// steps) the dead time trades against the dynamics and the fit settles at the largest
+// dead time searched: seed 202 predicts at 11 sigma with a dead time of 10 s (true 5.9 s).
+// That test is registered WILL_FAIL (tests/CMakeLists.txt) so that it runs in every build
+// and shows when the identifier reaches the bar: then it "fails" and WILL_FAIL goes.
+// bench/own_plant prints the figures over fresh draws.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -68,10 +70,9 @@ TEST(IdentifyGlobalPlant, Seed101PredictsFreshLevelsWithinTheNoise) {
   FitStaircaseAndPredictFreshLevels(101);
 }
 
-TEST(IdentifyGlobalPlant, Seed202PredictsFreshLevelsWithinTheNoise) {
+TEST(IdentifyGlobalPlant, KnownGapSeed202PredictsFreshLevelsWithinTheNoise) {
   FitStaircaseAndPredictFreshLevels(202);
 }
 
 }  // namespace
 }  // namespace flexid::testing
-

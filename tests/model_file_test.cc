@@ -201,6 +201,27 @@ TEST(ModelFile, DelayedVoltageSchedulingKeepsItsDelay) {
       InputError);
 }
 
+TEST(ModelFile, ParallelRealisationRoundTripsAndOldFilesStayFrozen) {
+  json document = json::parse(kTsFile);
+  EXPECT_EQ(ParseModelJson(document.dump(), "m.json").ts.realisation, TsRealisation::kFrozen);
+  EXPECT_FALSE(
+      ModelToJson(ParseModelJson(document.dump(), "m.json"))["scheduling"].contains("realisation"));
+  document["local_models"][1]["delay_s"] = 3.67;  // parallel rules share one dead time
+  document["scheduling"]["realisation"] = "parallel";
+  const ModelDocument read = ParseModelJson(document.dump(), "m.json");
+  EXPECT_EQ(read.ts.realisation, TsRealisation::kParallel);
+  EXPECT_EQ(ModelToJson(read)["scheduling"]["realisation"], "parallel");
+
+  document["scheduling"]["realisation"] = "series";
+  EXPECT_NE(ParseError(document.dump()).find("/scheduling/realisation: unknown realisation"),
+            std::string::npos)
+      << ParseError(document.dump());
+  document["scheduling"]["realisation"] = "parallel";
+  document["local_models"][1]["delay_s"] = 2.0;
+  EXPECT_NE(ParseError(document.dump()).find("share one dead time"), std::string::npos)
+      << ParseError(document.dump());
+}
+
 TEST(ModelFile, TransferFunctionDocumentBecomesASingleRule) {
   const ModelDocument document = ParseModelJson(kSmallestFile, "model.json");
   const TsModel model = AsTsModel(document);

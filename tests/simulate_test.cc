@@ -159,6 +159,65 @@ TEST(Simulate, DelayedPremiseStreamingAgreesWithTheUniformFastPath) {
   EXPECT_GT(MaxAbsDifference(fast, SimulateUniform(model, 0.1, u)), 1e-3);
 }
 
+// Parallel rules (ts_fuzzy.h): each rule driven by its share of the voltage.
+TsModel ParallelRules(const TransferFunction& low, const TransferFunction& high) {
+  TsModel model = MakeTsModelOnLevels({{2.0, low, {}}, {6.0, high, {}}});
+  model.realisation = TsRealisation::kParallel;
+  return model;
+}
+
+// The 6 V rule's share of u: linear from 2 to 6 V in |u| at the scheduling resolution.
+double Share(double u_V) {
+  const double z = std::round(std::abs(u_V) / kSchedulingResolution_V) * kSchedulingResolution_V;
+  return std::clamp((z - 2.0) / 4.0, 0.0, 1.0);
+}
+
+TEST(Simulate, ParallelRulesAreEachDrivenByTheirShare) {
+  const TransferFunction low{{0.5}, {4.0, 1.0}, 0.35}, high{{1.5}, {20.0, 1.0}, 0.35};
+  const TsModel model = ParallelRules(low, high);
+  const std::vector<double> u = RandomStaircase(2000, 37, 5);
+  // By hand: the shares of a linear membership between 2 and 6 V, then each rule alone.
+  std::vector<double> low_share(u.size()), high_share(u.size());
+  for (size_t k = 0; k < u.size(); ++k) {
+    const double w = Share(u[k]);
+    low_share[k] = (1 - w) * u[k];
+    high_share[k] = w * u[k];
+  }
+  std::vector<double> expected = SimulateUniform(low, 0.1, low_share);
+  const std::vector<double> part = SimulateUniform(high, 0.1, high_share);
+  for (size_t k = 0; k < u.size(); ++k) expected[k] += part[k];
+  ExpectVectorsNear(SimulateUniform(model, 0.1, u), expected, 1e-12);
+
+  // The streaming engine (and so the any-grid path) agrees.
+  StreamingSimulator streaming(model);
+  std::vector<double> slow;
+  for (size_t k = 0; k < u.size(); ++k)
+    slow.push_back(streaming.Step(0.1 * static_cast<double>(k), u[k]));
+  EXPECT_LT(MaxAbsDifference(expected, slow), 1e-9);
+
+  // And it is not the frozen blend: after a jump the old rule's share relaxes slowly.
+  TsModel frozen = model;
+  frozen.realisation = TsRealisation::kFrozen;
+  EXPECT_GT(MaxAbsDifference(expected, SimulateUniform(frozen, 0.1, u)), 0.1);
+}
+
+TEST(Simulate, ParallelRulesWithEqualDynamicsAreAHammersteinModel) {
+  // Same dynamics, gains 1 and 3 mm/V: the static map u -> K(|u|) u, then one system.
+  const TransferFunction unit{{1.0}, {8.0, 6.0, 1.0}, 0.2};
+  TransferFunction triple = unit;
+  triple.num = {3.0};
+  const TsModel model = ParallelRules(unit, triple);
+  const std::vector<double> u = RandomStaircase(1500, 23, 6);
+  std::vector<double> mapped(u.size());
+  for (size_t k = 0; k < u.size(); ++k) {
+    const double w = Share(u[k]);
+    mapped[k] = ((1 - w) * 1.0 + w * 3.0) * u[k];
+  }
+  ExpectVectorsNear(SimulateUniform(model, 0.1, u), SimulateUniform(unit, 0.1, mapped), 1e-12);
+  // Its frozen model at 4 V is the sum of the halves: DC gain 2 mm/V.
+  EXPECT_NEAR(DcGain(FrozenModelAt(model, 4.0)), 2.0, 1e-12);
+}
+
 TEST(Simulate, StartsInSteadyStateWhenAsked) {
   const TransferFunction tf = SeedModel2V();
   const auto y =

@@ -154,5 +154,24 @@ TEST(TsModel, RejectsUnequalOrders) {
   EXPECT_THROW(SimulateUniform(ts, 0.1, std::vector<double>(10, 1.0)), std::invalid_argument);
 }
 
+TEST(TsModel, ParallelRulesNeedTheAppliedVoltageAsPremiseAndOneDeadTime) {
+  TsModel model = MakeTsModelOnLevels(
+      {{2.0, {{1.0}, {1.0, 1.0}, 0.5}, {}}, {6.0, {{2.0}, {1.0, 1.0}, 0.5}, {}}});
+  model.realisation = TsRealisation::kParallel;
+  std::string why;
+  EXPECT_TRUE(IsValid(model, &why)) << why;
+  model.scheduling = SchedulingVariable::kAbsVoltageDelayed;
+  EXPECT_FALSE(IsValid(model, &why));
+  EXPECT_NE(why.find("abs_voltage"), std::string::npos) << why;
+  model.scheduling = SchedulingVariable::kAbsVoltage;
+  model.rules[1].tf.delay_s = 1.0;
+  EXPECT_FALSE(IsValid(model, &why));
+  EXPECT_NE(why.find("one dead time"), std::string::npos) << why;
+  TsRealisation parsed = TsRealisation::kFrozen;
+  EXPECT_TRUE(ParseTsRealisation("parallel", &parsed));
+  EXPECT_EQ(parsed, TsRealisation::kParallel);
+  EXPECT_FALSE(ParseTsRealisation("series", &parsed));
+}
+
 }  // namespace
 }  // namespace flexid::model
