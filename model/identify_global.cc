@@ -1124,60 +1124,72 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
   run_stage("pilot", {current}, {{}});
   // 2. Dynamics that change with the voltage: split the knots' range where a change of
   // dynamics helps most in sample, kept while the held-out error falls by more than 2 %.
-  while (current.dynamics_knots_V.size() < current.knots_V.size()) {
-    const Layout from{current, problem.w_min};
-    GlobalStructure best_split;
-    std::vector<double> best_theta;
-    double least = kInf;
-    for (size_t j = 0; j + 1 < current.knots_V.size(); ++j) {
-      GlobalStructure s = current;
-      for (double v : {current.knots_V[j], current.knots_V[j + 1]})
-        if (std::find(s.dynamics_knots_V.begin(), s.dynamics_knots_V.end(), v) ==
-            s.dynamics_knots_V.end())
-          s.dynamics_knots_V.push_back(v);
-      if (s.dynamics_knots_V.size() == current.dynamics_knots_V.size()) continue;
-      std::sort(s.dynamics_knots_V.begin(), s.dynamics_knots_V.end());
-      const Layout to{s, problem.w_min};
-      try {
-        FitResult fit = Fit(problem, to, usable, Transfer(from, current_all, to));
-        selector.CountFits();
-        if (fit.ssr < least) {
-          least = fit.ssr;
-          best_split = s;
-          best_theta = fit.theta;
+  auto split_dynamics = [&] {
+    while (current.dynamics_knots_V.size() < current.knots_V.size()) {
+      const Layout from{current, problem.w_min};
+      GlobalStructure best_split;
+      std::vector<double> best_theta;
+      double least = kInf;
+      for (size_t j = 0; j + 1 < current.knots_V.size(); ++j) {
+        GlobalStructure s = current;
+        for (double v : {current.knots_V[j], current.knots_V[j + 1]})
+          if (std::find(s.dynamics_knots_V.begin(), s.dynamics_knots_V.end(), v) ==
+              s.dynamics_knots_V.end())
+            s.dynamics_knots_V.push_back(v);
+        if (s.dynamics_knots_V.size() == current.dynamics_knots_V.size()) continue;
+        std::sort(s.dynamics_knots_V.begin(), s.dynamics_knots_V.end());
+        const Layout to{s, problem.w_min};
+        try {
+          FitResult fit = Fit(problem, to, usable, Transfer(from, current_all, to));
+          selector.CountFits();
+          if (fit.ssr < least) {
+            least = fit.ssr;
+            best_split = s;
+            best_theta = fit.theta;
+          }
+        } catch (const InputError&) {
         }
-      } catch (const InputError&) {
       }
+      if (best_theta.empty()) break;
+      std::vector<double> fitted;
+      StructureTrial trial = selector.Evaluate("dynamics", best_split, {best_theta}, &fitted);
+      result.trials.push_back(trial);
+      if (!(trial.held_out_rmse_mm * kHeldOutTolerance < current_held_out)) {
+        reasons.push_back("dynamics: " +
+                          (current.dynamics_knots_V.size() == 1
+                               ? std::string("one set for every voltage")
+                               : "changing at " + VoltList(current.dynamics_knots_V)) +
+                          " (held-out RMSE " + Volts(current_held_out) + " mm; with dynamics at " +
+                          VoltList(best_split.dynamics_knots_V) + ": " +
+                          (std::isfinite(trial.held_out_rmse_mm) ? Volts(trial.held_out_rmse_mm)
+                                                                 : std::string("failed")) +
+                          " mm)");
+        break;
+      }
+      current = best_split;
+      current_held_out = trial.held_out_rmse_mm;
+      current_all = fitted;
     }
-    if (best_theta.empty()) break;
-    std::vector<double> fitted;
-    StructureTrial trial = selector.Evaluate("dynamics", best_split, {best_theta}, &fitted);
-    result.trials.push_back(trial);
-    if (!(trial.held_out_rmse_mm * kHeldOutTolerance < current_held_out)) {
-      reasons.push_back("dynamics: " +
-                        (current.dynamics_knots_V.size() == 1
-                             ? std::string("one set for every voltage")
-                             : "changing at " + VoltList(current.dynamics_knots_V)) +
-                        " (held-out RMSE " + Volts(current_held_out) + " mm; with dynamics at " +
-                        VoltList(best_split.dynamics_knots_V) + ": " +
-                        (std::isfinite(trial.held_out_rmse_mm) ? Volts(trial.held_out_rmse_mm)
-                                                               : std::string("failed")) +
-                        " mm)");
-      break;
-    }
-    current = best_split;
-    current_held_out = trial.held_out_rmse_mm;
-    current_all = fitted;
-  }
-  // The realisation, once the dynamics may differ between rules (with one set of
-  // dynamics both are the same Hammerstein-like model): the rules switched as one frozen
-  // model, or run in parallel, each driven by its share of the voltage.
-  if (current.dynamics_knots_V.size() > 1 && !options.realisation) {
+  };
+  split_dynamics();
+  // The realisation: the rules switched as one frozen model, or run in parallel, each
+  // driven by its share of the voltage. With one set of dynamics both are the same
+  // Hammerstein-like model, so the parallel candidate then gets dynamics at the first and
+  // the last knot; where the dynamics change is then chosen again, in parallel. Chosen
+  // only under the frozen realisation, the split would not be tried at all where the
+  // frozen model cannot use it (a slow regime whose share keeps relaxing after a jump).
+  if (current.knots_V.size() > 1 && !options.realisation) {
     GlobalStructure parallel = current;
     parallel.realisation = TsRealisation::kParallel;
+    if (parallel.dynamics_knots_V.size() == 1)
+      parallel.dynamics_knots_V = {current.knots_V.front(), current.knots_V.back()};
+    const std::vector<double> parallel_start =
+        Transfer(Layout{current, problem.w_min}, current_all, Layout{parallel, problem.w_min});
+    const bool split_again = parallel.dynamics_knots_V != current.dynamics_knots_V;
     // The parallel candidate also gets the generic starts: started only where the
     // frozen fit ended, it stays in that fit's basin (its dead time among others).
-    run_stage("realisation", {current, parallel}, {{current_all}, {current_all}}, {false, true});
+    run_stage("realisation", {current, parallel}, {{current_all}, {parallel_start}}, {false, true});
+    if (split_again && current.realisation == TsRealisation::kParallel) split_dynamics();
   }
   // The dead time trades off against a zero, and a fit started at the wrong dead time
   // settles in that basin. Its profile is scanned once the model is close to the data:

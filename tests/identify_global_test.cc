@@ -93,6 +93,49 @@ TEST(IdentifyGlobal, SaysWhatTheDataDoNotShow) {
   EXPECT_TRUE(said);
 }
 
+// Two regimes with their own dynamics run in parallel, each driven by its share of the
+// voltage (ts_fuzzy.h kParallel): a slow one at 2 V (time constants 4 and 26 s) and a fast
+// one at 4 V (about 1 s), 0.2 s samples, 0.01 mm of noise. Jumps between 0, 2 and 4 V in
+// an order that differs per recording.
+Recording ParallelPlant(const std::string& name, unsigned seed, const std::vector<double>& order) {
+  const TransferFunction slow{{0.02, 0.01}, {1.0, 0.3, 0.01}, 0.6};  // 1 mm/V
+  const TransferFunction fast{{1.5, 1.5}, {1.0, 2.5, 1.0}, 0.6};     // 1.5 mm/V
+  TsModel plant = MakeTsModelOnLevels({{2.0, slow, {}}, {4.0, fast, {}}});
+  plant.realisation = TsRealisation::kParallel;
+  Recording rec;
+  rec.source = name;
+  for (int k = 0; k < 250 * static_cast<int>(order.size()); ++k) {
+    rec.t_s.push_back(0.2 * k);
+    rec.voltage_V.push_back(order[static_cast<size_t>(k / 250)]);
+  }
+  rec.deflection_mm = SimulateUniform(plant, 0.2, rec.voltage_V);
+  testing::Gaussian noise(seed);
+  for (double& y : rec.deflection_mm) y += 0.01 * noise();
+  return rec;
+}
+
+TEST(IdentifyGlobal, ChoosesParallelRulesWhereEachRegimeKeepsItsOwnDynamics) {
+  const GlobalEstimate e =
+      IdentifyGlobalTs({ParallelPlant("a.csv", 11, {0, 2, 4, 0, 4, 2, 0, 2, 0}),
+                        ParallelPlant("b.csv", 12, {0, 4, 2, 4, 0, 2, 4, 0, 4})});
+  EXPECT_EQ(e.structure.realisation, TsRealisation::kParallel) << e.reason;
+  EXPECT_EQ(e.model.realisation, TsRealisation::kParallel);
+  EXPECT_NE(e.reason.find("realisation (held-out RMSE mm): frozen"), std::string::npos)
+      << e.reason;
+  // A fresh order of jumps, predicted within a few noise deviations.
+  const Recording fresh = ParallelPlant("c.csv", 13, {0, 4, 0, 2, 4, 2, 0});
+  const std::vector<double> predicted = Simulate(e.model, fresh.t_s, fresh.voltage_V);
+  double squares = 0.0;
+  for (size_t k = 0; k < predicted.size(); ++k)
+    squares += (predicted[k] - fresh.deflection_mm[k]) * (predicted[k] - fresh.deflection_mm[k]);
+  EXPECT_LT(std::sqrt(squares / static_cast<double>(predicted.size())), 0.02) << e.reason;
+
+  GlobalIdentifyOptions both;
+  both.premise = SchedulingVariable::kAbsVoltageDelayed;
+  both.realisation = TsRealisation::kParallel;
+  EXPECT_THROW(IdentifyGlobalTs({fresh}, both), std::invalid_argument);
+}
+
 TEST(IdentifyGlobal, BadRecordingsGetOneLineNamingThem) {
   Recording flat = Staircase("flat.csv", 4);
   std::fill(flat.deflection_mm.begin(), flat.deflection_mm.end(), 1.0);
