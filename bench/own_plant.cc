@@ -3,8 +3,10 @@
 // integrator and smoothstep memberships on the delayed voltage; each rule driven by its
 // share of the voltage). Per draw: fit on a 1-8-1 V staircase (80 s per level), predict a
 // fresh 600 s recording of random levels 0-8 V, score the RMSE against the noise-free
-// deflection in units of the sensor noise. Prints one line per draw, then how many are
-// within 1.5 times the noise. The seeds are fresh on every run (printed; pass FIRST_SEED
+// deflection in units of the sensor noise. Prints one line per draw (the in-sample fit's
+// RMSE too, in the same unit: near 1 the fitted data are explained, and a large
+// validation figure beside it is what the staircase did not show), then how many are
+// within 1.5 times the noise. OWN_PLANT_REASON=1 also prints why each structure was chosen. The seeds are fresh on every run (printed; pass FIRST_SEED
 // to repeat a run).
 //
 //   build/bench/own_plant [DRAWS [FIRST_SEED]]      (default 8 draws)
@@ -13,6 +15,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <cstdlib>
 #include <random>
 #include <string>
 #include <vector>
@@ -32,7 +35,8 @@ int main(int argc, char** argv) {
   }
   std::printf("own_plant: %d draws from seed %llu\n", draws,
               static_cast<unsigned long long>(first));
-  std::printf("seed     rules  val RMSE/noise  dead time s (true)  fit s  structure\n");
+  std::printf(
+      "seed     rules  fit RMSE/noise  val RMSE/noise  dead time s (true)  fit s  structure\n");
   int within = 0;
   std::vector<double> ratios;
   for (int d = 0; d < draws; ++d) {
@@ -56,9 +60,11 @@ int main(int argc, char** argv) {
           std::sqrt(squares / static_cast<double>(predicted.size())) / plant.noise_std_mm;
       ratios.push_back(ratio);
       within += ratio <= 1.5;
-      std::printf("%-8llu %5zu  %14.2f  %8.2f (%5.2f)  %7.1f  %s\n",
-                  static_cast<unsigned long long>(seed), plant.rules.size(), ratio, e.delay_s.value,
-                  plant.delay_s, fit_s, e.structure.Describe().c_str());
+      std::printf("%-8llu %5zu  %14.2f  %14.2f  %8.2f (%5.2f)  %7.1f  %s\n",
+                  static_cast<unsigned long long>(seed), plant.rules.size(),
+                  e.fit.rmse_mm / plant.noise_std_mm, ratio, e.delay_s.value, plant.delay_s, fit_s,
+                  e.structure.Describe().c_str());
+      if (std::getenv("OWN_PLANT_REASON")) std::printf("  %s\n", e.reason.c_str());
     } catch (const std::exception& error) {
       std::printf("%-8llu %5zu  failed: %s\n", static_cast<unsigned long long>(seed),
                   plant.rules.size(), error.what());

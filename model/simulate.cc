@@ -4,6 +4,7 @@
 #include <bit>
 #include <cmath>
 #include <deque>
+#include <limits>
 #include <stdexcept>
 #include <string>
 #include <unordered_map>
@@ -182,16 +183,22 @@ void RunUniform(const TsModel& model, double dt_s, std::span<const double> u,
   }
   uint64_t last_key = ~uint64_t{0};
   const UniformEntry<N>* e = nullptr;
+  // The scheduler gives the same z for a repeated voltage (held |u| included), and lab
+  // inputs hold each voltage for many samples: z is computed only when the voltage moves.
+  double last_raw_V = std::numeric_limits<double>::quiet_NaN();
   for (long k = 0; k < count; ++k) {
-    const double z = OperatingZ(scheduler, up[k - premise_delay], resolution_V);
-    const uint64_t key = std::bit_cast<uint64_t>(z);
+    const double raw_V = up[k - premise_delay];
+    const bool moved = e == nullptr || raw_V != last_raw_V;
+    last_raw_V = raw_V;
+    const uint64_t key =
+        moved ? std::bit_cast<uint64_t>(OperatingZ(scheduler, raw_V, resolution_V)) : last_key;
     if (key != last_key) {
       auto delayed = [&](const UniformEntry<N>* p) {
         return p->fractional ? up[k - p->delay_samples - 1] : up[k - p->delay_samples];
       };
       const bool switching = e != nullptr && N != 0;
       if (switching) AddMarkovTerm(e->remap, delayed(e), +1.0, &x);
-      e = &entry_for(z);
+      e = &entry_for(std::bit_cast<double>(key));
       if (switching) AddMarkovTerm(e->remap, delayed(e), -1.0, &x);
       last_key = key;
     }

@@ -7,6 +7,8 @@
 
 #include <cmath>
 #include <limits>
+#include <string>
+#include <vector>
 
 #include "gaussian.h"
 #include "model/errors.h"
@@ -16,8 +18,10 @@ namespace flexid::model {
 namespace {
 
 // A 2-4 V staircase through a plant whose gain grows with the voltage (1 mm/V at 2 V,
-// 1.5 mm/V at 4 V), 0.2 s samples, Gaussian noise of 0.01 mm.
-Recording Staircase(const std::string& name, unsigned seed) {
+// 1.5 mm/V at 4 V), 0.2 s samples, Gaussian noise of 0.01 mm; 30 s blocks at the voltages
+// of `cycle` in turn (0, 2 and 4 V by default).
+Recording Staircase(const std::string& name, unsigned seed,
+                    const std::vector<double>& cycle = {0.0, 2.0, 4.0}) {
   const TransferFunction slow{{0.02, 0.01}, {1.0, 0.3, 0.01}, 0.6};  // DC gain 1 mm/V
   TransferFunction fast = slow;
   for (double& c : fast.num) c *= 1.5;
@@ -28,8 +32,7 @@ Recording Staircase(const std::string& name, unsigned seed) {
   rec.source = name;
   for (int k = 0; k < 1500; ++k) {
     rec.t_s.push_back(0.2 * k);
-    const int block = k / 150;
-    rec.voltage_V.push_back(block % 3 == 0 ? 0.0 : block % 3 == 1 ? 2.0 : 4.0);
+    rec.voltage_V.push_back(cycle[static_cast<size_t>(k / 150) % cycle.size()]);
   }
   rec.deflection_mm = SimulateUniform(plant, 0.2, rec.voltage_V);
   testing::Gaussian noise(seed);
@@ -91,6 +94,22 @@ TEST(IdentifyGlobal, SaysWhatTheDataDoNotShow) {
   for (const std::string& w : e.warnings)
     said = said || w.rfind("one-level.csv: one voltage level", 0) == 0;  // names the recording
   EXPECT_TRUE(said);
+}
+
+// A staircase that steps 1 V at a time: jumps across several levels, and so across the
+// rules, are not in the data, and the estimate says so, naming the recording; a recording
+// that jumps from 4 V to rest has no such warning.
+TEST(IdentifyGlobal, SaysWhenTheDataStepOnlyBetweenNeighbouringLevels) {
+  auto warned = [](const GlobalEstimate& e, const std::string& source) {
+    for (const std::string& w : e.warnings)
+      if (w.rfind(source + ": |u| changes by at most", 0) == 0) return true;
+    return false;
+  };
+  const GlobalEstimate steps =
+      IdentifyGlobalTs({Staircase("steps.csv", 5, {1.0, 2.0, 3.0, 4.0, 3.0, 2.0, 1.0, 0.0})});
+  EXPECT_TRUE(warned(steps, "steps.csv")) << ::testing::PrintToString(steps.warnings);
+  const GlobalEstimate jumps = IdentifyGlobalTs({Staircase("jumps.csv", 6)});
+  EXPECT_FALSE(warned(jumps, "jumps.csv")) << ::testing::PrintToString(jumps.warnings);
 }
 
 // Two regimes with their own dynamics run in parallel, each driven by its share of the
