@@ -1,15 +1,18 @@
 // Global identification (model/identify_global.h, what `flexid identify` runs) on fresh
 // plants of the independent T-S test plant (tests/ts_plant.h: its own realisation, RK4
 // integrator and smoothstep memberships on the delayed voltage; each rule driven by its
-// share of the voltage). Per draw: fit on a 1-8-1 V staircase (80 s per level), predict a
-// fresh 600 s recording of random levels 0-8 V, score the RMSE against the noise-free
-// deflection in units of the sensor noise. Prints one line per draw (the in-sample fit's
-// RMSE too, in the same unit: near 1 the fitted data are explained, and a large
-// validation figure beside it is what the staircase did not show), then how many are
-// within 1.5 times the noise. OWN_PLANT_REASON=1 also prints why each structure was chosen. The seeds are fresh on every run (printed; pass FIRST_SEED
-// to repeat a run).
+// share of the voltage). Per draw: fit on one recording, predict a fresh 600 s recording
+// of random levels 0-8 V, score the RMSE against the noise-free deflection in units of the
+// sensor noise. The fitted recording (PROTOCOL):
+//   staircase    1-8-1 V in 1 V steps, 80 s per level (the default);
+//   multilevel   1300 s of random levels 0-8 V, 40-120 s each, every level visited.
+// Prints one line per draw (the in-sample fit's RMSE too, in the same unit: near 1 the
+// fitted data are explained, and a large validation figure beside it is what the fitted
+// recording did not show), then how many are within 1.5 times the noise.
+// OWN_PLANT_REASON=1 also prints why each structure was chosen. The seeds are fresh on
+// every run (printed; pass FIRST_SEED to repeat a run).
 //
-//   build/bench/own_plant [DRAWS [FIRST_SEED]]      (default 8 draws)
+//   build/bench/own_plant [DRAWS [FIRST_SEED [PROTOCOL]]]      (default 8 draws)
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -29,12 +32,18 @@ int main(int argc, char** argv) {
   const int draws = argc > 1 ? std::atoi(argv[1]) : 8;
   const uint64_t first =
       argc > 2 ? std::strtoull(argv[2], nullptr, 10) : std::random_device{}() % 1000000;
+  const std::string protocol = argc > 3 ? argv[3] : "staircase";
   if (draws < 1) {
     std::fprintf(stderr, "own_plant: DRAWS must be a positive integer\n");
     return 2;
   }
-  std::printf("own_plant: %d draws from seed %llu\n", draws,
-              static_cast<unsigned long long>(first));
+  if (protocol != "staircase" && protocol != "multilevel") {
+    std::fprintf(stderr, "own_plant: PROTOCOL must be staircase or multilevel, not '%s'\n",
+                 protocol.c_str());
+    return 2;
+  }
+  std::printf("own_plant: %d draws from seed %llu, fitted on a %s\n", draws,
+              static_cast<unsigned long long>(first), protocol.c_str());
   std::printf(
       "seed     rules  fit RMSE/noise  val RMSE/noise  dead time s (true)  fit s  structure\n");
   int within = 0;
@@ -42,8 +51,12 @@ int main(int argc, char** argv) {
   for (int d = 0; d < draws; ++d) {
     const uint64_t seed = first + static_cast<uint64_t>(d);
     const testing::TsPlant plant = testing::DrawTsPlant(seed);
-    const testing::TsRecording fit = testing::RecordTsPlant(
-        plant, testing::TsStaircase(80.0), seed * 10 + 1, "own-plant-staircase.csv");
+    const testing::TsRecording fit =
+        protocol == "staircase"
+            ? testing::RecordTsPlant(plant, testing::TsStaircase(80.0), seed * 10 + 1,
+                                     "own-plant-staircase.csv")
+            : testing::RecordTsPlant(plant, testing::TsRandomLevels(seed * 10 + 4, 1300.0),
+                                     seed * 10 + 1, "own-plant-multilevel.csv");
     const testing::TsRecording check = testing::RecordTsPlant(
         plant, testing::TsRandomLevels(seed * 10 + 2), seed * 10 + 3, "own-plant-levels.csv");
     const auto start = std::chrono::steady_clock::now();
