@@ -583,10 +583,11 @@ void BlockErrors(const Problem& problem, const TsModel& model, const Fold& fold,
     }
 }
 
-// True unless `b` predicts held-out data significantly better than `a`: a one-sided
-// Wilcoxon signed-rank test at 5 % on the blocks' log ratios of mean squared error (a's
-// over b's), in its normal approximation, or a's pooled error within kHeldOutTolerance of
-// b's. Why a rank test, measured:
+// True unless `b` predicts held-out data better than `a` block after block: the Wilcoxon
+// signed-rank statistic of the blocks' log ratios of mean squared error (a's over b's) at
+// most one standard deviation above its mean under no difference (the rank form of the
+// one-standard-error rule of cross-validation), or a's pooled error within
+// kHeldOutTolerance of b's. Why a rank statistic, measured:
 //   - a flat 2 %, or one standard error of the blocks' differences, let a 4-pole model
 //     win a staircase by 2.7-5.7 % over a 2-pole one; its extra modes, which nothing in
 //     the staircase determines, set the state the rules hand over on a jump of several
@@ -595,7 +596,11 @@ void BlockErrors(const Problem& problem, const TsModel& model, const Fold& fold,
 //   - the blocks differ in kind (a chirp's blocks in frequency, a staircase's in level),
 //     so the differences are heavy-tailed and of mixed sizes: a t-test on them missed a
 //     4-pole model better by 35 % on every block of a chirp, and one 3.7 times worse on a
-//     staircase. A rank test asks whether one structure is better block after block.
+//     staircase. A rank statistic asks whether one structure is better block after block.
+// Why one deviation rather than a test at 5 %: at 5 %, on two recordings left out in turn
+// (ten blocks of two kinds), a split of the dynamics 20 % better and a premise were
+// refused, and the dead time went to 8.3 s (true 3.7 s); own-plant draws passed 2 in 10
+// rather than 3.
 bool AsGoodAs(const StructureTrial& a, const StructureTrial& b) {
   if (!std::isfinite(a.held_out_rmse_mm)) return false;
   if (!std::isfinite(b.held_out_rmse_mm)) return true;
@@ -626,7 +631,7 @@ bool AsGoodAs(const StructureTrial& a, const StructureTrial& b) {
   const double md = static_cast<double>(m);
   const double mean = md * (md + 1.0) / 4.0;
   const double sd = std::sqrt(md * (md + 1.0) * (2.0 * md + 1.0) / 24.0);
-  return (positive - mean) / sd <= 1.645;
+  return (positive - mean) / sd <= 1.0;
 }
 
 // Leave one recording out (at most 4 folds); one recording: alternate blocks in turn.
