@@ -64,14 +64,20 @@ SecantLmResult SolveSecantLm(const std::function<bool(const double*, double*)>& 
     }
     jacobian.col(c).setZero();
   };
+  int updates = 0;           // secant updates since the whole Jacobian was last differenced
+  Eigen::MatrixXd normal;    // J^T J
+  Eigen::VectorXd gradient;  // J^T f
+  auto normal_equations = [&] {
+    normal = jacobian.transpose() * jacobian;
+    gradient = jacobian.transpose() * f;
+  };
   auto difference_all = [&] {
     for (Eigen::Index c = 0; c < p; ++c) difference_column(c);
+    updates = 0;
+    normal_equations();
   };
 
   if (p > 0) difference_all();
-  int updates = 0;  // secant updates since the whole Jacobian was last differenced
-  Eigen::MatrixXd normal = jacobian.transpose() * jacobian;
-  Eigen::VectorXd gradient = jacobian.transpose() * f;
   double mu = 1e-4, nu = 2.0;
   Eigen::Index cycle = -1;
   Eigen::VectorXd trial_f(m);
@@ -80,19 +86,11 @@ SecantLmResult SolveSecantLm(const std::function<bool(const double*, double*)>& 
   auto converged = [&] {
     if (updates == 0) return true;
     difference_all();
-    updates = 0;
-    normal = jacobian.transpose() * jacobian;
-    gradient = jacobian.transpose() * f;
     return false;
   };
   for (int iteration = 0; iteration < options.max_iterations && p > 0; ++iteration) {
     result.iterations = iteration + 1;
-    if (updates >= kRefreshAfter) {
-      difference_all();
-      updates = 0;
-      normal = jacobian.transpose() * jacobian;
-      gradient = jacobian.transpose() * f;
-    }
+    if (updates >= kRefreshAfter) difference_all();
     if (gradient.cwiseAbs().maxCoeff() <= 1e-14 * std::max(cost, 1e-300) && converged()) break;
     // Marquardt's scaling: damping proportional to the diagonal of J^T J.
     const Eigen::VectorXd scale = normal.diagonal().cwiseMax(1e-12 * normal.diagonal().maxCoeff());
@@ -140,21 +138,18 @@ SecantLmResult SolveSecantLm(const std::function<bool(const double*, double*)>& 
       cost = trial_cost;
       mu *= std::max(1.0 / 3.0, 1.0 - std::pow(2.0 * rho - 1.0, 3));
       nu = 2.0;
-      normal = jacobian.transpose() * jacobian;
-      gradient = jacobian.transpose() * f;
+      normal_equations();
       if (decrease <= options.function_tolerance * (cost + decrease) && converged()) break;
       continue;
     }
     if (updates >= kStaleAfter) {
       // The step may have failed on a stale estimate: difference it all again here.
       difference_all();
-      updates = 0;
     } else {
       mu *= nu;
       nu *= 2.0;
+      normal_equations();  // the secant update above changed J
     }
-    normal = jacobian.transpose() * jacobian;
-    gradient = jacobian.transpose() * f;
   }
   result.x = std::move(x);
   result.sum_of_squares = cost;
