@@ -47,34 +47,51 @@ SecantLmResult SolveSecantLm(const std::function<bool(const double*, double*)>& 
   if (!evaluate(x, &f)) throw std::invalid_argument("secant L-M: the start is not admissible");
   double cost = f.squaredNorm();
 
-  // Column c of the Jacobian by a forward difference (backward at the upper bound, or
-  // where the forward point is not admissible; zero if neither is).
+  // The Jacobian J and the normal equations' J^T J and J^T f. After the first, every
+  // change of J is a column or a rank-one update, and J^T J follows it in O(m p) rather
+  // than O(m p^2) (the product was a fifth of a fit's time); it is formed afresh whenever
+  // the whole Jacobian is differenced again, so rounding does not accumulate.
   Eigen::MatrixXd jacobian(m, p);
+  Eigen::MatrixXd normal(p, p);  // J^T J
+  Eigen::VectorXd gradient(p);   // J^T f
   Eigen::VectorXd shifted(m);
-  auto difference_column = [&](Eigen::Index c) {
+  // Column c of the Jacobian by a forward difference (backward at the upper bound, or
+  // where the forward point is not admissible; zero if neither is). `follow`: keep the
+  // normal equations up to date.
+  auto difference_column = [&](Eigen::Index c, bool follow) {
     const size_t j = free[static_cast<size_t>(c)];
     double h = options.difference_step * std::max(1.0, std::abs(x[j]));
-    for (int side = 0; side < 2; ++side, h = -h) {
+    bool found = false;
+    for (int side = 0; side < 2 && !found; ++side, h = -h) {
       std::vector<double> at = x;
       at[j] = x[j] + h;
       if (at[j] > upper[j] || at[j] < lower[j]) continue;
       if (!evaluate(at, &shifted)) continue;
       jacobian.col(c) = (shifted - f) / h;
-      return;
+      found = true;
     }
-    jacobian.col(c).setZero();
+    if (!found) jacobian.col(c).setZero();
+    if (!follow) return;
+    const Eigen::VectorXd row = jacobian.transpose() * jacobian.col(c);
+    normal.col(c) = row;
+    normal.row(c) = row.transpose();
+    gradient(c) = jacobian.col(c).dot(f);
   };
-  int updates = 0;           // secant updates since the whole Jacobian was last differenced
-  Eigen::MatrixXd normal;    // J^T J
-  Eigen::VectorXd gradient;  // J^T f
-  auto normal_equations = [&] {
-    normal = jacobian.transpose() * jacobian;
+  int updates = 0;  // secant updates since the whole Jacobian was last differenced
+  auto difference_all = [&] {
+    for (Eigen::Index c = 0; c < p; ++c) difference_column(c, false);
+    updates = 0;
+    normal.setZero();
+    normal.selfadjointView<Eigen::Lower>().rankUpdate(jacobian.transpose());
+    normal.triangularView<Eigen::StrictlyUpper>() = normal.transpose();
     gradient = jacobian.transpose() * f;
   };
-  auto difference_all = [&] {
-    for (Eigen::Index c = 0; c < p; ++c) difference_column(c);
-    updates = 0;
-    normal_equations();
+  // Broyden's rank-one update J += a s^T along the step s, with J^T J and J^T f.
+  auto secant_update = [&](const Eigen::VectorXd& a, const Eigen::VectorXd& s) {
+    const Eigen::VectorXd g = jacobian.transpose() * a;
+    normal += g * s.transpose() + s * g.transpose() + a.squaredNorm() * (s * s.transpose());
+    gradient += a.dot(f) * s;
+    jacobian += a * s.transpose();
   };
 
   if (p > 0) difference_all();
@@ -121,11 +138,11 @@ SecantLmResult SolveSecantLm(const std::function<bool(const double*, double*)>& 
     // One coordinate direction per iteration, cycling, differenced afresh when the step
     // hardly explores it (Algorithm 3.34): keeps every column from going stale.
     cycle = (cycle + 1) % p;
-    if (std::abs(step(cycle)) < 0.8 * step.norm()) difference_column(cycle);
+    if (std::abs(step(cycle)) < 0.8 * step.norm()) difference_column(cycle, true);
     const bool admissible = evaluate(trial, &trial_f);
     if (admissible) {
       // Broyden's rank-one update along the step taken.
-      jacobian += ((trial_f - f - jacobian * step) / step.squaredNorm()) * step.transpose();
+      secant_update((trial_f - f - jacobian * step) / step.squaredNorm(), step);
       ++updates;
     }
     const double trial_cost =
@@ -138,7 +155,7 @@ SecantLmResult SolveSecantLm(const std::function<bool(const double*, double*)>& 
       cost = trial_cost;
       mu *= std::max(1.0 / 3.0, 1.0 - std::pow(2.0 * rho - 1.0, 3));
       nu = 2.0;
-      normal_equations();
+      gradient = jacobian.transpose() * f;
       if (decrease <= options.function_tolerance * (cost + decrease) && converged()) break;
       continue;
     }
@@ -148,7 +165,6 @@ SecantLmResult SolveSecantLm(const std::function<bool(const double*, double*)>& 
     } else {
       mu *= nu;
       nu *= 2.0;
-      normal_equations();  // the secant update above changed J
     }
   }
   result.x = std::move(x);

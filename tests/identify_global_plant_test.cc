@@ -66,7 +66,17 @@ void FitStaircaseAndPredictFreshLevels(uint64_t seed) {
   ::testing::Test::RecordProperty("delay_true_s", std::to_string(plant.delay_s));
 
   EXPECT_LE(ratio, 1.5) << summary;
-  EXPECT_NEAR(estimate.delay_s.value, plant.delay_s, 1.5) << summary;
+  // The dead time: within 1.5 s of the plant's, or said to be undetermined (it trades off
+  // against the zeros of higher orders) with an interval that holds the plant's.
+  const double delay_error_s = std::abs(estimate.delay_s.value - plant.delay_s);
+  const bool said_undetermined =
+      std::any_of(estimate.warnings.begin(), estimate.warnings.end(), [](const std::string& w) {
+        return w.find("the dead time is not determined") != std::string::npos;
+      });
+  EXPECT_LE(delay_error_s, estimate.delay_s.half_width_95)
+      << summary << ": +- " << estimate.delay_s.half_width_95 << " s";
+  EXPECT_TRUE(delay_error_s <= 1.5 || said_undetermined)
+      << summary << ": +- " << estimate.delay_s.half_width_95 << " s";
 }
 
 // One of the two draws of seeds 7100-7109 that reach the bar today (bench/own_plant 10

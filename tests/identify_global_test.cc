@@ -139,8 +139,7 @@ TEST(IdentifyGlobal, ChoosesParallelRulesWhereEachRegimeKeepsItsOwnDynamics) {
                         ParallelPlant("b.csv", 12, {0, 4, 2, 4, 0, 2, 4, 0, 4})});
   EXPECT_EQ(e.structure.realisation, TsRealisation::kParallel) << e.reason;
   EXPECT_EQ(e.model.realisation, TsRealisation::kParallel);
-  EXPECT_NE(e.reason.find("realisation (held-out RMSE mm): frozen"), std::string::npos)
-      << e.reason;
+  EXPECT_NE(e.reason.find("realisation (held-out RMSE mm): frozen"), std::string::npos) << e.reason;
   // A fresh order of jumps, predicted within a few noise deviations.
   const Recording fresh = ParallelPlant("c.csv", 13, {0, 4, 0, 2, 4, 2, 0});
   const std::vector<double> predicted = Simulate(e.model, fresh.t_s, fresh.voltage_V);
@@ -153,6 +152,48 @@ TEST(IdentifyGlobal, ChoosesParallelRulesWhereEachRegimeKeepsItsOwnDynamics) {
   both.premise = SchedulingVariable::kAbsVoltageDelayed;
   both.realisation = TsRealisation::kParallel;
   EXPECT_THROW(IdentifyGlobalTs({fresh}, both), std::invalid_argument);
+}
+
+// Dense data (0.02 s samples, 20,000 of them): the structure is chosen on every 5th
+// sample, whose grid is blind above 31 rad/s. 0-2-4-2 V blocks of 10 s through a slow
+// plant, noise 0.01 mm, and one of:
+// - a lightly damped 60 rad/s mode beside it (0.05 mm/V): a misfit above the coarse band,
+//   so the structure is chosen again on every sample, and that fit reaches the noise;
+// - a sensor offset of +-0.05 mm switching every 34 s: a misfit of five times the noise,
+//   but below the coarse band, where the coarse selection saw it: no second choice.
+Recording Dense(const std::string& name, bool ringing) {
+  const TransferFunction slow{{0.02, 0.01}, {1.0, 0.3, 0.01}, 0.6};  // 1 mm/V
+  const double w_rad_s = 60.0;
+  const TransferFunction mode{
+      {0.05 * w_rad_s * w_rad_s}, {1.0, 0.01 * w_rad_s, w_rad_s * w_rad_s}, 0.6};
+  Recording rec;
+  rec.source = name;
+  const std::vector<double> cycle = {0.0, 2.0, 4.0, 2.0};
+  for (int k = 0; k < 20'000; ++k) {
+    rec.t_s.push_back(0.02 * k);
+    rec.voltage_V.push_back(cycle[static_cast<size_t>(k / 500) % cycle.size()]);
+  }
+  rec.deflection_mm = SimulateUniform(slow, 0.02, rec.voltage_V);
+  const std::vector<double> rings = SimulateUniform(mode, 0.02, rec.voltage_V);
+  testing::Gaussian noise(21);
+  for (size_t k = 0; k < rec.deflection_mm.size(); ++k)
+    rec.deflection_mm[k] += (ringing ? rings[k] : ((k / 1700) % 2 ? 0.05 : -0.05)) + 0.01 * noise();
+  return rec;
+}
+
+TEST(IdentifyGlobal, ChoosesAgainOnEverySampleOnlyWhereTheCoarseGridIsBlind) {
+  auto chosen_again = [](const GlobalEstimate& e) {
+    for (const std::string& note : e.notes)
+      if (note.rfind("structure chosen on every sample", 0) == 0) return true;
+    return false;
+  };
+  const GlobalEstimate ringing = IdentifyGlobalTs({Dense("ringing.csv", true)});
+  EXPECT_TRUE(chosen_again(ringing)) << ::testing::PrintToString(ringing.notes);
+  EXPECT_LT(ringing.fit.rmse_mm, 0.015) << ringing.reason;
+
+  const GlobalEstimate offset = IdentifyGlobalTs({Dense("offset.csv", false)});
+  EXPECT_FALSE(chosen_again(offset)) << ::testing::PrintToString(offset.notes);
+  EXPECT_GT(offset.fit.rmse_mm, 0.03);  // the offset is not in the model
 }
 
 TEST(IdentifyGlobal, BadRecordingsGetOneLineNamingThem) {
