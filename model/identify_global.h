@@ -124,6 +124,14 @@ struct GlobalStructure {
   // kParallel: each rule driven by its share of u (ts_fuzzy.h); the premise is then |u|
   // read as the voltage is applied, its share delayed with it by T.
   TsRealisation realisation = TsRealisation::kFrozen;
+  // The hand-over between rules. kTriangular: gains and dynamics interpolated linearly
+  // between neighbouring knots, each rule alone at its own knot. kGaussian: Gaussian
+  // memberships centred on the knots with one width, fitted with the rest: a smooth
+  // hand-over of estimated width, every rule firing everywhere.
+  MembershipShape membership = MembershipShape::kTriangular;
+  // kGaussian: each rule's centre fitted too, within 0.45 of the spacing to its
+  // neighbouring knots (knots_V then name the rules; the model holds the centres).
+  bool centres_fitted = false;
   int Parameters() const;  // free parameters (dead time included)
   std::string Describe() const;
 };

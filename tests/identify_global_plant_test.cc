@@ -32,7 +32,10 @@ namespace {
 
 // Fits on a staircase (80 s per level, 12,901 samples) with default options, then
 // predicts a fresh 600 s multilevel recording; seeds fixed before the first run.
-void FitStaircaseAndPredictFreshLevels(uint64_t seed) {
+// `checks`: the prediction within 1.5 times the noise, the dead time (within 1.5 s of the
+// plant's, or said to be undetermined, and in its interval), or both.
+enum class Checks { kPrediction, kDeadTime, kBoth };
+void FitStaircaseAndPredictFreshLevels(uint64_t seed, Checks checks = Checks::kBoth) {
   const TsPlant plant = DrawTsPlant(seed);
   const std::string name = "ts-plant-" + std::to_string(seed);
   const TsRecording fit =
@@ -65,7 +68,10 @@ void FitStaircaseAndPredictFreshLevels(uint64_t seed) {
   ::testing::Test::RecordProperty("delay_found_s", std::to_string(estimate.delay_s.value));
   ::testing::Test::RecordProperty("delay_true_s", std::to_string(plant.delay_s));
 
-  EXPECT_LE(ratio, 1.5) << summary;
+  if (checks != Checks::kDeadTime) {
+    EXPECT_LE(ratio, 1.5) << summary;
+  }
+  if (checks == Checks::kPrediction) return;
   // The dead time: within 1.5 s of the plant's, or said to be undetermined (it trades off
   // against the zeros of higher orders) with an interval that holds the plant's.
   const double delay_error_s = std::abs(estimate.delay_s.value - plant.delay_s);
@@ -79,10 +85,17 @@ void FitStaircaseAndPredictFreshLevels(uint64_t seed) {
       << summary << ": +- " << estimate.delay_s.half_width_95 << " s";
 }
 
-// One of the two draws of seeds 7100-7109 that reach the bar today (bench/own_plant 10
-// 7100 prints all ten): a guard that what works keeps working.
+// One of the draws of seeds 7100-7109 that reach the bar today (bench/own_plant 10 7100
+// prints all ten): a guard that what works keeps working.
 TEST(IdentifyGlobalPlant, Seed7103PredictsFreshLevelsWithinTheNoise) {
-  FitStaircaseAndPredictFreshLevels(7103);
+  FitStaircaseAndPredictFreshLevels(7103, Checks::kPrediction);
+}
+
+// Its dead time: the chosen three smooth rules of 4 poles and 3 zeros predict at 0.11
+// times the noise with T = 5.4 +- 0.5 s, against the plant's 3.83 s: the zeros take part
+// of the delay, and the profile interval, conditional on the structure, excludes it.
+TEST(IdentifyGlobalPlant, KnownGapSeed7103DeadTimeWithinItsInterval) {
+  FitStaircaseAndPredictFreshLevels(7103, Checks::kDeadTime);
 }
 
 TEST(IdentifyGlobalPlant, KnownGapSeed101PredictsFreshLevelsWithinTheNoise) {
