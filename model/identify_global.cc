@@ -1833,14 +1833,20 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
         count > 0 ? std::sqrt(squares / (6.0 * static_cast<double>(count))) : 0.0;
     const double above_mm = windows > 0 ? std::sqrt(above / static_cast<double>(windows)) : 0.0;
     const double white_above_mm = noise_mm * std::sqrt(1.0 - 1.0 / static_cast<double>(window));
-    if (above_mm > 1.5 * white_above_mm) {
+    // The same test fails when the coarse grid's model does not carry over to the full
+    // rate: its error on every sample more than twice what it held out on the coarse one.
+    const bool carried_over = result.fit.rmse_mm <= 2.0 * result.held_out_rmse_mm;
+    if (above_mm > 1.5 * white_above_mm || !carried_over) {
       GlobalIdentifyOptions every = options;
       every.max_selection_factor = 1;
       GlobalEstimate fine = IdentifyGlobalTs(recordings, every);
       fine.notes.push_back(
           "structure chosen on every sample: chosen on every " + std::to_string(factor) +
-          "th, the residual above that grid's band stayed at " + Volts(above_mm) + " mm, " +
-          Volts(above_mm / white_above_mm) + " times the noise's share there");
+          (carried_over
+               ? "th, the residual above that grid's band stayed at " + Volts(above_mm) + " mm, " +
+                     Volts(above_mm / white_above_mm) + " times the noise's share there"
+               : "th, its model's error on every sample was " + Volts(result.fit.rmse_mm) +
+                     " mm, against " + Volts(result.held_out_rmse_mm) + " mm held out"));
       fine.fits += result.fits;
       return fine;
     }
