@@ -5,7 +5,9 @@
 // Model (seed Eqs. 16-19 with the blend of ts_fuzzy.h). R rules sit at knot voltages
 // c_1 < ... < c_R. Between two knots the memberships interpolate linearly; below the
 // first and above the last they hold (shoulders). So every local parameter is a linear
-// spline in the premise z, and a level between knots gets no model of its own. Rule i is
+// spline in the premise z, and a level between knots gets no model of its own. Or (few
+// rules, each with its own dynamics) Gaussian memberships whose centres and common width
+// are parameters of the fit: a smooth hand-over of estimated place and width. Rule i is
 //   G_i(s) = K_i (beta_im s^m + ... + beta_i1 s + 1) / D_i(s) * D_i(0) * e^{-T s},
 //   D_i(s) = prod_q (s^2 + c1_iq s + c0_iq) [* (s + c_i) for odd n],  every c > 0,
 // with one dead time T shared by all rules (Eq. 18 with b5/a4 as the DC gain K_i). The
@@ -54,6 +56,10 @@
 // the fastest pole of a linear 2/1 model of all the data; the chosen structure is then
 // refitted on every sample, the dead time placed within a coarse sample by the sum of
 // squares alone (the rest of the model is already close; one simulation per point).
+// The structure is chosen again on every sample, and that choice kept, when the coarse
+// grid was blind to the misfit (the residual above its Nyquist band, after its moving mean
+// over f samples, more than 1.5 times the noise's share there) or its model does not
+// carry over (the error on every sample above twice the coarse held-out error).
 //
 // Structure, chosen on held-out data (leave one recording out; with one recording, ten
 // blocks in time, alternately fitted and held out, in turn; each fold starts from the
@@ -74,7 +80,11 @@
 //      T, and a fit started at the wrong T stays in that basin;
 //   5. the orders (1/0, 2/1, 3/2, 4/3) at the chosen knots, higher orders also started
 //      from the current fit with a cancelling pole and zero added;
-//   6. the premise, at the chosen structure (frozen rules only: parallel rules read the
+//   6. fewer rules: two and three rules with their own dynamics and Gaussian memberships
+//      (centres within 0.45 of the spacing to their neighbours and the width fitted), at
+//      the (i + 1/2) / n quantiles of the active |u| samples, against the current one
+//      rule per knot;
+//   7. the premise, at the chosen structure (frozen rules only: parallel rules read the
 //      voltage as it is applied and delay their share with it).
 // The premise and the orders are compared only once the model is close to the data:
 // compared on the pilot, whose error is what it cannot represent, they would be chosen by
@@ -83,20 +93,19 @@
 // signed-rank statistic of the held-out blocks' log ratios of mean squared error (five
 // blocks per recording left out, or the ten alternating blocks) within one standard
 // deviation of its null mean, or the pooled error within 2 % of the best; between
-// alternatives with as many parameters, the lower held-out error. A structure already
+// alternatives with as many parameters, the lower held-out error, except that the
+// structure the stage started from stays unless beaten by more than 2 %. A structure already
 // fitted and held out is not fitted again in a later stage. Fixed orders or premise skip
 // their stage.
 //
 // Status (`flexid identify` uses this by default; figures in the README's
 // "Identification"): on the independent simulator's recordings that visit every level
 // the model predicts fresh data within the noise. Two 6,600-sample square waves take
-// 0.8 s on one core, a 20,000-sample staircase of the seed's model about 11 s
-// (bench/identify_bench; there the structure is chosen a second time on every sample).
-// On the own test plant (tests/ts_plant.h: rules driven by their share of the voltage)
-// most draws are fitted to the noise and predict fresh multilevel data at several times
-// it (bench/own_plant): a staircase of 1 V steps does not determine the response to
-// larger jumps, and one interpolated transfer function per knot only approximates a level
-// where two rules with their own dynamics share the voltage.
+// 0.7 s on one core, a 20,000-sample staircase of the seed's model 1.95 s
+// (bench/identify_bench). On the own test plant (tests/ts_plant.h: rules driven by their
+// share of the voltage) half the draws predict fresh data within 1.5 times the noise, all
+// with few smooth parallel rules (bench/own_plant); a staircase of 1 V steps does not
+// determine the response to larger jumps.
 
 #pragma once
 
