@@ -1043,17 +1043,23 @@ int Choose(const std::vector<StructureTrial>& trials, const GlobalStructure& inc
   return chosen;
 }
 
+// |u| of every sample off rest, sorted ascending (the knots' quantiles).
+std::vector<double> ActiveMagnitudes(const Problem& problem) {
+  std::vector<double> active;
+  for (const Series& s : problem.series)
+    for (double u : s.u)
+      if (std::abs(u) > problem.rest_band_V) active.push_back(std::abs(u));
+  std::sort(active.begin(), active.end());
+  return active;
+}
+
 // Knots: the visited |levels| when there are few, otherwise quantiles of |u| off rest.
 std::vector<double> InitialKnots(const Problem& problem, const std::vector<double>& levels,
                                  bool plateau_input, int max_rules) {
   if (plateau_input && !levels.empty() && levels.size() <= static_cast<size_t>(max_rules))
     return levels;
-  std::vector<double> active;
-  for (const Series& s : problem.series)
-    for (double u : s.u)
-      if (std::abs(u) > problem.rest_band_V) active.push_back(std::abs(u));
+  const std::vector<double> active = ActiveMagnitudes(problem);
   if (active.empty()) return {0.0};
-  std::sort(active.begin(), active.end());
   std::vector<double> knots;
   const int count = std::max(1, max_rules);
   for (int i = 0; i < count; ++i) {
@@ -1465,10 +1471,11 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
     const Layout from{current, problem.w_min}, to{to_structure, problem.w_min};
     Problem screen = problem;
     screen.max_iterations = std::min(problem.max_iterations, kScreenIterations);
+    const std::vector<double> transferred = Transfer(from, current_all, to);
     FitResult best;
-    best.theta = Transfer(from, current_all, to);
+    best.theta = transferred;
     for (double share : {0.25, 0.5, 1.0}) {
-      std::vector<double> theta = Transfer(from, current_all, to);
+      std::vector<double> theta = transferred;
       theta[static_cast<size_t>(to.WidthIndex())] = std::log(share * to.Spacing());
       try {
         FitResult fit = Fit(screen, to, usable, std::move(theta));
@@ -1490,11 +1497,7 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
   // of the quantiles: on the HASEL chirp they put the two rules where the held-out error
   // was 1.29 mm against 1.18 mm.
   if (current.knots_V.size() > 3) {
-    std::vector<double> active;  // |u| off rest, sorted
-    for (const Series& series : problem.series)
-      for (double u : series.u)
-        if (std::abs(u) > problem.rest_band_V) active.push_back(std::abs(u));
-    std::sort(active.begin(), active.end());
+    const std::vector<double> active = ActiveMagnitudes(problem);
     std::vector<GlobalStructure> candidates = {current};
     std::vector<std::vector<std::vector<double>>> starts = {{current_all}};
     for (int rules : {2, 3}) {
