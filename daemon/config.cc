@@ -99,13 +99,16 @@ Config ParseConfigText(std::string_view text, const std::string& path) {
   Read(root, "auth_window_s", path, &c.auth_window_s);
   if (const toml::table* id = root["identification"].as_table()) {
     const std::string where = path + ": identification";
-    CheckKeys(*id, {"method", "zeros", "poles", "max_delay_s", "latest_trials"}, where);
+    CheckKeys(*id,
+              {"method", "zeros", "poles", "max_delay_s", "latest_trials", "max_diagnosis_samples"},
+              where);
     Read(*id, "method", where, &c.identification.method);
     c.identification.orders_given = id->contains("zeros") || id->contains("poles");
     Read(*id, "zeros", where, &c.identification.zeros);
     Read(*id, "poles", where, &c.identification.poles);
     Read(*id, "max_delay_s", where, &c.identification.max_delay_s);
     Read(*id, "latest_trials", where, &c.identification.latest_trials);
+    Read(*id, "max_diagnosis_samples", where, &c.identification.max_diagnosis_samples);
   }
   if (const toml::table* alerts = root["alerts"].as_table()) {
     const std::string where = path + ": alerts";
@@ -189,6 +192,8 @@ void Validate(const Config& c) {
   if (!(id.max_delay_s >= 0.0) || !std::isfinite(id.max_delay_s))
     Fail("identification.max_delay_s", "must be finite and >= 0");
   if (id.latest_trials < 1) Fail("identification.latest_trials", "must be >= 1");
+  if (id.max_diagnosis_samples < 200)
+    Fail("identification.max_diagnosis_samples", "must be >= 200 (a diagnosis needs 200 samples)");
   std::string why;
   if (!c.alerts.IsValid(&why)) Fail("alerts", why);
   const HealthConfig& h = c.health;
@@ -248,7 +253,8 @@ std::vector<std::string> Describe(const Config& c) {
                ? std::string("chosen")
                : std::to_string(c.identification.poles)) +
           ", max_delay_s " + std::to_string(c.identification.max_delay_s) + ", latest_trials " +
-          std::to_string(c.identification.latest_trials),
+          std::to_string(c.identification.latest_trials) + ", max_diagnosis_samples " +
+          std::to_string(c.identification.max_diagnosis_samples),
       "alerts: false_alarms_per_hour " + std::to_string(c.alerts.false_alarms_per_hour) +
           ", min_hold_s " + std::to_string(c.alerts.min_hold_s) + ", settle_s " +
           std::to_string(c.alerts.settle_s) + ", dropout_s " + std::to_string(c.alerts.dropout_s)};

@@ -24,6 +24,9 @@ struct IdentificationConfig {
   bool orders_given = false;
   double max_delay_s = 10.0;
   int latest_trials = 2;  // "identify" without trial ids uses this many latest complete trials
+  // A diagnosis request for a trial with more samples is refused (a no-model diagnosis of
+  // 77,000 samples takes minutes on the worker thread, and memory grows with them).
+  int64_t max_diagnosis_samples = 200000;
 };
 
 // How the daemon notices faults other than bad messages (daemon/health.h, README

@@ -1131,10 +1131,16 @@ model::Recording RecordingOfTrial(const std::vector<storage::Sample>& samples, i
 // when asked, against the seed's structure identified on the trial), on the worker thread
 // with its own connection.
 IdentifyResult RunDiagnosis(const std::string& database, const std::string& actuator_id,
-                            int64_t trial_id, bool use_model, RpcContext request) {
+                            int64_t trial_id, bool use_model, int64_t max_samples,
+                            RpcContext request) {
   IdentifyResult result{std::move(request), actuator_id, std::nullopt, "", nullptr, trial_id, 0};
   try {
     storage::Database db = storage::Database::Open(database);
+    if (const int64_t count = db.SampleCount(trial_id); count > max_samples)
+      throw std::runtime_error("trial " + std::to_string(trial_id) + " has " +
+                               std::to_string(count) + " samples; flexidd diagnoses at most " +
+                               std::to_string(max_samples) +
+                               " (identification.max_diagnosis_samples)");
     const std::vector<storage::Sample> samples = db.Samples(trial_id);
     const model::Recording rec = RecordingOfTrial(samples, trial_id, 200);
     result.trial_start_utime = samples.front().utime;
@@ -1439,11 +1445,12 @@ RpcOutcome Daemon::Impl::HandleRequest(const flexid::rpc_request_t& request) {
       storage::SampleWriter* samples = writer.get();
       const std::string database = config.database, id = state->info.id;
       const RpcContext context{request.request_id, request.client_id};
-      if (!Submit([database, id, trial_id, use_model, context, samples] {
+      const int64_t max_samples = config.identification.max_diagnosis_samples;
+      if (!Submit([database, id, trial_id, use_model, max_samples, context, samples] {
             if (!samples->Flush())
               return IdentifyResult{context, id, std::nullopt,
                                     "cannot commit samples: " + samples->last_error()};
-            return RunDiagnosis(database, id, trial_id, use_model, context);
+            return RunDiagnosis(database, id, trial_id, use_model, max_samples, context);
           }))
         return {Reply::kBusy, nullptr,
                 "an identification or diagnosis is already running; try again when it ends", false};

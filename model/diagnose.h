@@ -10,55 +10,68 @@
 //     input is known everywhere, so every model is simulated over the whole recording and
 //     scored on the fitted ("training") and the held-out samples separately.
 //  2. Baseline. With a trusted model: that model as given (with its file's augmentations).
-//     Without: the seed's structure (3 zeros, 4 poles, dead time) identified on the
-//     training samples, as a T-S blend over the recording's voltage levels and as one
-//     transfer function for all of it; the blend is kept only if it earns its extra
-//     parameters (BIC on the training samples).
+//     Without: the whole T-S model identified on the training samples by the global fit
+//     (identify_global.h, the path `flexid identify` and flexidd take), limited to the
+//     seed's blend: one rule, or two handing over smoothly (Eq. 19), never a gain per level
+//     (which would absorb a static map or a gain that changes with time).
 //  3. Locate. The residual r = measured - baseline, broken down by operating condition
 //     (Localisation), with its whiteness and input cross-correlation tests.
 //  4. Candidates. Each effect of the catalogue (EffectKind) that the recording can show
 //     (e.g. polarity_asymmetry needs both polarities) is added to the baseline and its
-//     parameters are fitted (Levenberg-Marquardt, Ceres, numeric derivatives through the
-//     simulation, several starts for the nonlinear ones) on the training samples. A
-//     trusted model stays as given; an identified single transfer function is refitted
-//     with the effect (its coefficients too, from the effect-only fit), since a free fit
-//     bends towards an effect it cannot express and would make the effect look worse.
-//     The recorded voltage is a sampled column: where a step really happened between two
-//     samples is unknown, and its timing error leaves a slow error in any model's
-//     prediction. Every training fit and test is therefore made after projecting out the
-//     baseline's response to moving each recorded step by up to half a sample (one
-//     nuisance regressor per step; none for continuous inputs). Held-out figures are raw.
+//     parameters are fitted on the training samples (several starts for the nonlinear
+//     ones). A trusted model stays as given (Levenberg-Marquardt, Ceres, numeric
+//     derivatives through the simulation). An identified baseline is refitted with every
+//     effect, every rule's coefficients with the effect's parameters (secant L-M,
+//     secant_lm.h): fitted alone it has bent towards what it cannot express. It is tested
+//     against the baseline refitted the same way without an effect, or against the best of
+//     the candidates' refits with their effect removed when one of them landed in a better
+//     optimum (the gain is then the optimiser's, not the effect's). Without a trusted
+//     model back-relaxation is tried only where a free fit with one more pole and zero
+//     falls back (the physics chain's step response cannot, Eqs. 11-13); elsewhere a slow
+//     pole-zero pair is model order.
+//     With a trusted model the recorded voltage is a sampled column: where a step really
+//     happened between two samples is unknown, and its timing error leaves a slow error in
+//     the prediction. Its fits and tests are made after projecting out the baseline's
+//     response to moving each recorded step by up to half a sample (one nuisance regressor
+//     per step; none for continuous inputs: more than one step per 50 samples or more than
+//     64 steps, which bounds the regressors' memory to 64 doubles a sample). An identified
+//     baseline has none: it is fitted to these samples, and free nuisance coefficients let
+//     the timing absorb slow trends. Held-out figures are raw.
 //  5. Decide. Residuals of a slightly wrong model are not white, so samples are not
 //     independent evidence: every likelihood figure uses the effective sample count
 //     n_eff = n (1 - rho) / (1 + rho) of the residual (rho its lag-1 autocorrelation). A
 //     candidate is claimed when
-//       - its likelihood ratio n_eff ln(SSE_0 / SSE_1), training plus held-out (the
-//         held-out part counted only when positive), exceeds the chi-square quantile for
+//       - its likelihood ratio n_eff ln(SSE_0 / SSE_1) exceeds the chi-square quantile for
 //         its parameter count at DiagnoseOptions::false_alarm_rate (Bonferroni over the
-//         candidates tried),
+//         candidates tried): training plus held-out (the held-out part counted only when
+//         positive) with a trusted model, training alone without one (there the held-out
+//         samples also test the identified baseline's extrapolation),
 //       - it predicts the held-out samples better: held-out likelihood ratio above the
-//         chi-square(1) quantile at the same rate, and a lower held-out RMSE, and
+//         chi-square(1) quantile at the same rate, and a lower held-out RMSE,
 //       - what it adds to the prediction is at least min_effect_to_noise times the noise
-//         over the samples it touches (a statistically real but negligible effect is the
-//         model's own small error, not missing physics).
-//     Among claimed candidates the verdict is the one with the lowest information
-//     criterion on the training samples, BIC = n_eff ln(SSE / n) + k ln(n_eff). One more
+//         over the samples it touches, and
+//       - its size is determined: with a trusted model, the 95 % interval (delta method on
+//         the fit's covariance) of how much of it there is excludes none; without one, the
+//         likelihood ratio against the refitted baseline is the profile test of size =
+//         none. A candidate that passes all but this is an unexplained misfit (Misfit),
+//         reported where it is, never named.
+//     Among claimed candidates the verdict is, with a trusted model, the one with the lowest
+//     information criterion on the training samples, BIC = n_eff ln(SSE / n) + k ln(n_eff);
+//     without one, the lowest held-out RMSE (each candidate brings its own refit). One more
 //     effect may then be added on top of it by the same tests (forward selection, at most
 //     max_effects), the earlier effects refitted with it.
-//  6. Without a trusted model, the identified baseline is also read against the physics
-//     chain (Eqs. 11-13: real poles, a step response that rises without falling back): a
-//     step response that rises above its final value and falls back is back-relaxation
-//     the free fit absorbed, reported as a finding (Absorbed).
+//  6. Without a trusted model, the identified baseline as refitted with the findings is
+//     also read against the physics chain (Eqs. 11-13: a step response that rises without
+//     falling back): a fall-back is reported (Absorbed), never named: it has no held-out
+//     test and no interval.
 //
-// Measured on recordings of an independent simulator (tests/effect_plant.h,
-// tests/diagnose_acceptance_test.cc): with the trusted model, 78 of 80 effects at 0.7-10
-// times the noise named (both misses: a sensor drift below 0.8 times the noise read as
-// creep), 10 of 10 clean recordings "none", held-out RMSE at least halved (median) where
-// the effect is twice the noise.
-// Without a model (the baseline refitted with each effect): 18 of 24 effects at 2-10 times
-// the noise named (every hysteresis, drift and degradation; no back-relaxation: a slow
-// linear relaxation is within what the identified transfer function spans, and the
-// simulator's never made its step response fall back), 0 of 12 clean recordings flagged.
+// Measured (README "Diagnosis", with the commands): on the independent simulator's
+// batteries (../shared/data/independent/score), on the lab plant of
+// tests/effect_plant.h (tests/diagnose_acceptance_test.cc; its effects and this catalogue
+// share the formulas of cycle degradation and polarity asymmetry, and its drift is a
+// warm-up plus a linear trend like the catalogue's), and on the effect battery of
+// tests/effect_battery.h (tests/diagnose_battery_test.cc, bench/diagnose_battery), whose
+// effects are formulated otherwise than any catalogue entry.
 //
 // Deterministic: no random numbers; the same input gives the same findings.
 #pragma once
@@ -171,6 +184,15 @@ struct Absorbed {
   std::string explanation;
 };
 
+// Something a candidate effect would explain (it passed every test of the evidence) whose
+// size the data do not determine: reported where it is, never as a named effect.
+struct Misfit {
+  std::string resembles;  // the effect whose model would explain it
+  double rms_mm = 0.0;    // what that model adds, over the samples it touches
+  std::vector<TimeSpan> where;
+  std::string explanation;
+};
+
 struct DiagnoseOptions {
   int heldout_blocks = 3;
   double heldout_fraction = 0.3;   // of the duration, in (0, 0.5]
@@ -197,6 +219,7 @@ struct Diagnosis {
   std::vector<Finding> findings;  // claimed effects, the verdict first
   std::vector<CandidateReport> candidates;
   std::vector<Absorbed> absorbed;
+  std::vector<Misfit> unexplained;
   Localisation localisation;
   std::vector<double> baseline_mm;   // prediction at every sample
   std::vector<double> augmented_mm;  // with the findings' effects (= baseline when none)

@@ -1158,6 +1158,8 @@ bool GlobalIdentifyOptions::IsValid(std::string* error) const {
   if (fixed && !(num_zeros >= 0 && num_poles >= 1 && num_zeros < num_poles && num_poles <= 6))
     return fail("orders: need 0 <= zeros < poles <= 6, or both -1 to choose them");
   if (max_rules < 1 || max_rules > 16) return fail("max_rules: need 1 to 16");
+  if (rules_at_most < 0 || rules_at_most > max_rules)
+    return fail("rules_at_most: need 0 (no limit) to max_rules");
   if (!(max_delay_s >= 0.0) || !std::isfinite(max_delay_s))
     return fail("max_delay_s must be finite and >= 0");
   if (fixed_delay_s && (!(*fixed_delay_s >= 0.0) || !std::isfinite(*fixed_delay_s)))
@@ -1496,11 +1498,25 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
   // exists, and 5 % of the staircase's time. Knots spread evenly over the range instead
   // of the quantiles: on the HASEL chirp they put the two rules where the held-out error
   // was 1.29 mm against 1.18 mm.
-  if (current.knots_V.size() > 3) {
+  // With rules_at_most, the knot per level is no candidate: one rule (at the median active
+  // |u|) takes its place.
+  const size_t limit = options.rules_at_most > 0 ? static_cast<size_t>(options.rules_at_most) : 3;
+  if (current.knots_V.size() > limit) {
     const std::vector<double> active = ActiveMagnitudes(problem);
     std::vector<GlobalStructure> candidates = {current};
     std::vector<std::vector<std::vector<double>>> starts = {{current_all}};
-    for (int rules : {2, 3}) {
+    if (options.rules_at_most > 0) {
+      GlobalStructure one = current;
+      one.knots_V = {active[active.size() / 2]};
+      one.dynamics_knots_V = one.knots_V;
+      one.realisation = TsRealisation::kFrozen;
+      one.membership = MembershipShape::kTriangular;
+      one.centres_fitted = false;
+      candidates = {one};
+      starts = {
+          {Transfer(Layout{current, problem.w_min}, current_all, Layout{one, problem.w_min})}};
+    }
+    for (int rules = 2; rules <= static_cast<int>(std::min<size_t>(limit, 3)); ++rules) {
       GlobalStructure few = current;
       few.knots_V.clear();
       for (int i = 0; i < rules; ++i) {

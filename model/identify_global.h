@@ -152,6 +152,13 @@ struct GlobalIdentifyOptions {
   std::optional<SchedulingVariable> premise;  // fixed premise; chosen when absent
   std::optional<TsRealisation> realisation;   // fixed realisation; chosen when absent
   int max_rules = 8;                          // knots at most (levels beyond are spread)
+  // Rules in the result at most (0: max_rules alone decides). Where more levels are
+  // visited, the "rules" stage then chooses between one rule and two to rules_at_most
+  // (at most 3) rules with smooth hand-overs; the structure with a knot per level is not
+  // a candidate. The diagnosis uses 2, the seed's blend (Eq. 19): a knot per level would
+  // give every level a gain of its own and absorb a static map (saturation, a dead zone)
+  // or a gain that changes between levels visited at different times (degradation, drift).
+  int rules_at_most = 0;
   double max_delay_s = 10.0;
   std::optional<double> fixed_delay_s;  // the dead time, when known
   int max_iterations = 60;              // per fit

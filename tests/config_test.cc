@@ -29,6 +29,7 @@ TEST(Config, TheExampleFileLoadsAndValidates) {
   EXPECT_EQ(c.actuators[0].id, "S1");
   EXPECT_EQ(c.actuators[0].thickness_mm, 2.0);
   EXPECT_EQ(c.identification.poles, 4);
+  EXPECT_EQ(c.identification.max_diagnosis_samples, 200000);
   EXPECT_EQ(c.alerts.false_alarms_per_hour, 0.1);
   EXPECT_FALSE(Describe(c).empty());
 }
@@ -58,6 +59,9 @@ TEST(Config, BadFilesAreNamedWithTheProblem) {
             std::string::npos);
   EXPECT_NE(ErrorOf(write("orders.toml", "[identification]\nzeros = 4\npoles = 4\n"))
                 .find("zeros < poles"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf(write("diagnosis.toml", "[identification]\nmax_diagnosis_samples = 10\n"))
+                .find("identification.max_diagnosis_samples: must be >= 200"),
             std::string::npos);
   EXPECT_NE(ErrorOf(dir.File("missing.toml")).find("missing.toml"), std::string::npos);
 }

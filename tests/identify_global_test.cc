@@ -221,6 +221,20 @@ TEST(IdentifyGlobal, BadRecordingsGetOneLineNamingThem) {
   bad.num_zeros = 3;
   bad.num_poles = 2;
   EXPECT_THROW(IdentifyGlobalTs({Staircase("a.csv", 7)}, bad), std::invalid_argument);
+  GlobalIdentifyOptions too_many;
+  too_many.rules_at_most = too_many.max_rules + 1;
+  EXPECT_THROW(IdentifyGlobalTs({Staircase("a.csv", 7)}, too_many), std::invalid_argument);
+}
+
+// rules_at_most (the diagnosis's baseline): a recording visiting four levels would get a
+// knot at each; limited to two, the result has one rule or two with smooth hand-overs.
+TEST(IdentifyGlobal, RulesAtMostLimitsTheRules) {
+  const Recording four = Staircase("four.csv", 8, {1.0, 2.0, 3.0, 4.0, 0.0, 3.0, 1.0, 4.0, 2.0});
+  GlobalIdentifyOptions options;
+  options.rules_at_most = 2;
+  const GlobalEstimate limited = IdentifyGlobalTs({four}, options);
+  EXPECT_LE(limited.model.rules.size(), 2u) << limited.structure.Describe();
+  EXPECT_LE(limited.structure.knots_V.size(), 2u) << limited.reason;
 }
 
 }  // namespace

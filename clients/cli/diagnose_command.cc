@@ -89,9 +89,8 @@ std::string Params(const json& item) {
 void PrintHuman(const std::string& subject, const std::string& against, const json& d) {
   const json baseline = d.value("baseline", json::object());
   std::printf("diagnosis of %s %s\n", subject.c_str(),
-              !against.empty()
-                  ? ("against " + against + " (trusted model)").c_str()
-                  : "(baseline identified on the recording: 3 zeros, 4 poles, dead time)");
+              !against.empty() ? ("against " + against + " (trusted model)").c_str()
+                               : "(baseline identified on the recording by the global T-S fit)");
   std::printf(
       "  baseline: fit %s %%, RMSE %s mm on the fitted samples; held-out RMSE %s mm; "
       "sensor noise ~%s mm\n",
@@ -109,6 +108,13 @@ void PrintHuman(const std::string& subject, const std::string& against, const js
                 FormatNumber(NumberOr(f, "heldout_rmse_before_mm"), 3).c_str(),
                 FormatNumber(NumberOr(f, "heldout_rmse_after_mm"), 3).c_str());
   }
+  for (const json& m : d.value("unexplained", json::array())) {
+    std::printf("  unexplained misfit: %s\n", Text(m, "explanation").c_str());
+    std::printf("    where: %s\n", Spans(m.value("where", json::array())).c_str());
+  }
+  for (const json& a : d.value("absorbed", json::array()))
+    std::printf("  absorbed by the identified model (not named): %s\n",
+                Text(a, "explanation").c_str());
   std::printf(
       "\ncandidates (likelihood ratios use the effective sample count of correlated residuals)\n");
   std::printf("  %-24s %5s %11s %11s %10s %10s  %s\n", "effect", "round", "train mm", "held-out mm",

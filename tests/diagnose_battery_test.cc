@@ -1,0 +1,197 @@
+// The mismatch diagnosis (model/diagnose.h) on the effect battery (effect_battery.h): the
+// independent T-S test plant with one concealed effect formulated otherwise than the
+// diagnosis's catalogue (two relaxation time constants, a random-walk or delayed thermal
+// drift, a Preisach model, a square-root-of-charge wear, current-limited electrolysis, a
+// lagged negative polarity), at 2.5-9 times the sensor noise, on a protocol drawn from a
+// lab's usual set; or no effect.
+//
+// The project's goals:
+//   - without a model, Diagnose(recording, none): at least 90 % of the effects named
+//     (verdict == the effect's name), at most 1 clean recording in 8 flagged;
+//   - with a model, the trusted model being the global T-S identification
+//     (identify_global.h) on the same plant's clean identification recordings (a 1-8-1 V
+//     staircase, 120 s per level, and 600 s of random levels of both signs), as a lab
+//     identifies first and diagnoses a later recording: at least 95 % named, no false alarm.
+// 24 recordings each way (20 effects, 4 or 3 of each class in BatteryEffectClasses order,
+// and 4 clean). The effect recordings are held to the goal together (90 % of 20 is 18, 95 %
+// is 19); 1 in 8 of 4 clean recordings is 0.5, so none may be flagged.
+//
+// The seeds were drawn once from /dev/urandom when this test was written, before any of
+// them was run, and are not to be changed or selected. Groups that do not meet the goals
+// yet are named KnownGap... and registered WILL_FAIL (tests/CMakeLists.txt), as the
+// project does for its other known gaps, so that they run in every build and show when the
+// diagnosis reaches the goal: then they "fail", and the KnownGap prefix goes.
+//
+// Measured (the tables each test prints), with the diagnosis of this commit:
+//   without a model: 11 of 20 named (back_relaxation 0/4, sensor_drift 4/4, hysteresis 2/3,
+//     cycle_degradation 3/3, electrolysis_saturation 0/3, polarity_asymmetry 2/3), 0 of 4
+//     clean recordings flagged. Back-relaxation with two time constants is read as drift
+//     or missed; saturation is missed on every draw (two of the three on a single level,
+//     where without a model it is a gain; the diagnosis does not try it there).
+//   with the identified model: 5 of 20 named, 2 of 4 clean recordings flagged. The
+//     identified model itself is the main error: its RMS error against the plant alone on
+//     the diagnosed recording ("model/s" in the table) is within 1.5 noise deviations on 6
+//     of the 24 recordings, and 5 of those 6 are diagnosed right; elsewhere it is 1.6-18
+//     deviations off (identify_global.h: a staircase does not determine larger jumps), and
+//     that error is read as an effect or hides the concealed one.
+//   bench/diagnose_battery on fresh draws: without a model 9 of 20 named, 1 of 4 clean
+//     recordings flagged (seed 552097608393), so the clean group passing is not yet the
+//     goal met.
+// Diagnose takes 1-6 s per recording without a model (up to 25 s on 1000 s of bipolar
+// levels), 1 s with one; the identification 7.5 s.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <exception>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "effect_battery.h"
+#include "model/diagnose.h"
+#include "model/identify_global.h"
+#include "model/simulate.h"
+
+namespace flexid::testing {
+namespace {
+
+// Drawn from /dev/urandom once (see the file header).
+constexpr uint64_t kWithoutModelEffectSeeds[20] = {
+    225237679384, 157079970376, 335847382003, 416317393451, 833971275850,
+    30153536894,  274869808868, 302706762393, 332562052654, 457244923149,
+    349939573911, 224802012426, 639436711393, 816688509502, 887980467876,
+    776836130104, 595649782567, 758640958386, 331921297629, 83526853370};
+constexpr uint64_t kWithoutModelCleanSeeds[4] = {995013235950, 73935040208, 612806475504,
+                                                 959770334861};
+constexpr uint64_t kWithModelEffectSeeds[20] = {
+    324881733448, 826200427143, 186836195315, 299352635663, 714790328655,
+    705743490777, 827932196213, 950339451544, 611590730562, 553122424194,
+    708007901329, 111885471108, 793715271523, 348342144913, 114770098957,
+    932950276638, 328672173389, 905026992724, 821486244450, 759957618355};
+constexpr uint64_t kWithModelCleanSeeds[4] = {755583549676, 770345188266, 140262061553,
+                                              23477610079};
+
+struct Outcome {
+  uint64_t seed = 0;
+  std::string protocol;
+  std::string effect;
+  double ratio = 0.0;
+  std::string verdict;
+  double identify_s = 0.0;
+  double diagnose_s = 0.0;
+  // With a model: its RMS error against the plant alone (noise-free) on the diagnosed
+  // recording, in noise deviations: what the trusted model itself gets wrong.
+  double model_error = 0.0;
+  std::string description;
+  bool Named() const { return verdict == effect; }
+};
+
+double ModelError(const model::TsModel& trusted, const BatteryCase& battery_case) {
+  const std::vector<double> predicted =
+      model::Simulate(trusted, battery_case.recording.t_s, battery_case.recording.voltage_V);
+  double squares = 0.0;
+  for (size_t k = 0; k < predicted.size(); ++k)
+    squares +=
+        (predicted[k] - battery_case.plant_mm[k]) * (predicted[k] - battery_case.plant_mm[k]);
+  return std::sqrt(squares / static_cast<double>(predicted.size())) /
+         battery_case.plant.noise_std_mm;
+}
+
+// Draws the case, identifies the trusted model if asked, diagnoses. An exception becomes
+// the verdict's text, so that the table shows every case.
+Outcome RunCase(uint64_t seed, BatteryEffect effect, bool with_model) {
+  Outcome outcome;
+  outcome.seed = seed;
+  outcome.effect = BatteryEffectName(effect);
+  try {
+    const BatteryCase battery_case = DrawBatteryCase(seed, {.effect = effect});
+    outcome.protocol = battery_case.protocol.name;
+    outcome.ratio = battery_case.ratio;
+    outcome.description = battery_case.description;
+    std::optional<model::TsModel> trusted;
+    if (with_model) {
+      const auto start = std::chrono::steady_clock::now();
+      trusted = model::IdentifyGlobalTs(RecordBatteryIdentification(battery_case)).model;
+      outcome.identify_s =
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+      outcome.model_error = ModelError(*trusted, battery_case);
+    }
+    const auto start = std::chrono::steady_clock::now();
+    outcome.verdict = model::Diagnose(battery_case.recording, trusted).verdict;
+    outcome.diagnose_s =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  } catch (const std::exception& error) {
+    outcome.verdict = std::string("exception: ") + error.what();
+  }
+  return outcome;
+}
+
+void PrintTable(const std::string& title, const std::vector<Outcome>& outcomes) {
+  std::printf("\n%s\n%4s  %-13s %-10s %-24s %6s  %-24s %3s %7s %7s %7s  %s\n", title.c_str(),
+              "case", "seed", "protocol", "effect", "ratio", "verdict", "ok", "model/s", "ident s",
+              "diag s", "case drawn");
+  for (size_t i = 0; i < outcomes.size(); ++i) {
+    const Outcome& o = outcomes[i];
+    std::printf("%4zu  %-13llu %-10s %-24s %6.2f  %-24s %3s %7.2f %7.2f %7.2f  %s\n", i,
+                static_cast<unsigned long long>(o.seed), o.protocol.c_str(), o.effect.c_str(),
+                o.ratio, o.verdict.c_str(), o.Named() ? "yes" : "NO", o.model_error, o.identify_s,
+                o.diagnose_s, o.description.c_str());
+  }
+  std::fflush(stdout);
+}
+
+// Effect recordings first..first+count-1 of the 20 (class = index mod 6), held to the goal.
+void ExpectEffectsNamed(const uint64_t (&seeds)[20], size_t first, size_t count, bool with_model) {
+  const std::vector<BatteryEffect> classes = BatteryEffectClasses();
+  std::vector<Outcome> outcomes;
+  for (size_t i = first; i < first + count; ++i)
+    outcomes.push_back(RunCase(seeds[i], classes[i % classes.size()], with_model));
+  const std::string mode = with_model ? "with the identified model" : "without a model";
+  PrintTable("Effect battery, " + mode + ": effects " + std::to_string(first) + "-" +
+                 std::to_string(first + count - 1),
+             outcomes);
+  const auto named =
+      std::count_if(outcomes.begin(), outcomes.end(), [](const Outcome& o) { return o.Named(); });
+  const double goal = with_model ? 0.95 : 0.90;
+  std::printf("named %ld of %zu (goal %.0f %%)\n", static_cast<long>(named), count, 100 * goal);
+  EXPECT_GE(static_cast<double>(named), goal * static_cast<double>(count))
+      << mode << ": named " << named << " of " << count;
+}
+
+void ExpectCleanNotFlagged(const uint64_t (&seeds)[4], bool with_model) {
+  std::vector<Outcome> outcomes;
+  for (uint64_t seed : seeds) outcomes.push_back(RunCase(seed, BatteryEffect::kNone, with_model));
+  const std::string mode = with_model ? "with the identified model" : "without a model";
+  PrintTable("Effect battery, " + mode + ": clean recordings", outcomes);
+  const auto flagged =
+      std::count_if(outcomes.begin(), outcomes.end(), [](const Outcome& o) { return !o.Named(); });
+  std::printf("flagged %ld of %zu\n", static_cast<long>(flagged), outcomes.size());
+  if (with_model) {
+    EXPECT_EQ(flagged, 0) << "no clean recording may be flagged with the trusted model";
+  } else {
+    EXPECT_LE(8 * flagged, static_cast<long>(outcomes.size()))
+        << "at most 1 clean recording in 8 may be flagged without a model";
+  }
+}
+
+// The goals hold for the whole set of 20 effect recordings each way (the issue's
+// criterion), not for each handful: 18 of 20 without a model, 19 of 20 with one.
+TEST(DiagnoseBattery, KnownGapWithoutModelNamesNineInTen) {
+  ExpectEffectsNamed(kWithoutModelEffectSeeds, 0, 20, false);
+}
+TEST(DiagnoseBattery, WithoutModelCleanRecordings) {
+  ExpectCleanNotFlagged(kWithoutModelCleanSeeds, false);
+}
+TEST(DiagnoseBattery, KnownGapWithModelNamesNineteenInTwenty) {
+  ExpectEffectsNamed(kWithModelEffectSeeds, 0, 20, true);
+}
+TEST(DiagnoseBattery, KnownGapWithModelCleanRecordings) {
+  ExpectCleanNotFlagged(kWithModelCleanSeeds, true);
+}
+
+}  // namespace
+}  // namespace flexid::testing
