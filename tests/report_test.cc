@@ -303,6 +303,22 @@ TEST(DiagnosisReport, ContainsVerdictExplanationAndFigures) {
   EXPECT_EQ(row.find(">0<"), std::string::npos) << row;
 }
 
+TEST(DiagnosisReport, ShowsUnexplainedMisfitsOnlyWhenThereAreSome) {
+  Example e = BackRelaxationExample();
+  EXPECT_EQ(DiagnosisReportHtml(e.recording, e.diagnosis, "r").find("Unexplained misfits"),
+            std::string::npos);
+  model::Misfit misfit;
+  misfit.resembles = "electrolysis_saturation";
+  misfit.rms_mm = 0.0789;
+  misfit.where = {{345.6, 524.5}};
+  misfit.explanation = "its size is not determined <i>";
+  e.diagnosis.unexplained.push_back(misfit);
+  const std::string html = DiagnosisReportHtml(e.recording, e.diagnosis, "r");
+  EXPECT_NE(html.find("Unexplained misfits"), std::string::npos);
+  EXPECT_NE(html.find("<td>electrolysis_saturation</td>"), std::string::npos);
+  EXPECT_NE(html.find("not determined &lt;i&gt;"), std::string::npos);
+}
+
 TEST(DiagnosisReport, ParameterTableShowsValueAndHalfWidth) {
   const Example e = BackRelaxationExample();
   const std::string html = DiagnosisReportHtml(e.recording, e.diagnosis, "report");

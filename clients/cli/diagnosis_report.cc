@@ -351,6 +351,17 @@ std::string AbsorbedSection(const model::Diagnosis& diagnosis) {
   return html + "</table>\n";
 }
 
+// Misfits a candidate would explain but whose size the data do not determine: never named.
+std::string UnexplainedSection(const model::Diagnosis& diagnosis) {
+  if (diagnosis.unexplained.empty()) return "";
+  std::string html = "<h2>Unexplained misfits</h2>\n<table>\n" +
+                     HeaderRow({"resembles", "RMS (mm)", "where", "explanation"});
+  for (const auto& m : diagnosis.unexplained)
+    html += "<tr>" + Cell(Html(m.resembles)) + NumberCell(Number(m.rms_mm)) + Cell(Spans(m.where)) +
+            Cell(Html(m.explanation)) + "</tr>\n";
+  return html + "</table>\n";
+}
+
 std::string NotesSection(const model::Diagnosis& diagnosis) {
   std::string html = "<h2>Notes</h2>\n";
   if (diagnosis.notes.empty()) return html + "<p>None.</p>\n";
@@ -398,6 +409,7 @@ std::string DiagnosisSectionsHtml(const model::Recording& recording,
   html += Plots(recording, diagnosis);
   html += FindingsTable(diagnosis);
   html += CandidateTable(diagnosis);
+  html += UnexplainedSection(diagnosis);
   html += LocalisationSection(diagnosis);
   html += AbsorbedSection(diagnosis);
   html += NotesSection(diagnosis);
