@@ -1757,7 +1757,29 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
                                 "): the model is linear, and every other voltage is "
                                 "extrapolated from it");
     const auto& k = current.knots_V;
-    for (size_t i = 0; i + 1 < k.size(); ++i) {
+    // Smooth rules hand over between their centres, wherever the fit put the hand-over:
+    // the gain is read off the model at each visited level, and a change of gain between
+    // two neighbouring visited levels is where the data do not show it.
+    if (current.membership == MembershipShape::kGaussian) {
+      auto gain_at = [&](double v) {
+        std::vector<double> mu;
+        NormalisedMemberships(result.model, v, &mu);
+        double g = 0.0;
+        for (size_t r = 0; r < mu.size(); ++r) g += mu[r] * DcGain(result.model.rules[r].tf);
+        return g;
+      };
+      const std::vector<double>& levels = result.levels_V;
+      for (size_t i = 0; i + 1 < levels.size(); ++i) {
+        const double a = levels[i], b = levels[i + 1], ga = gain_at(a), gb = gain_at(b);
+        if (std::abs(gb - ga) > 0.1 * std::max(std::abs(ga), std::abs(gb)))
+          result.warnings.push_back(
+              "between " + Volts(a) + " and " + Volts(b) + " V the DC gain changes from " +
+              Volts(ga) + " to " + Volts(gb) +
+              " mm/V and no level between them was visited: where the rules hand over is not "
+              "in the data");
+      }
+    }
+    for (size_t i = 0; i + 1 < k.size() && current.membership != MembershipShape::kGaussian; ++i) {
       const bool seen = std::any_of(result.levels_V.begin(), result.levels_V.end(), [&](double v) {
         return v > k[i] + merged.tolerance_V && v < k[i + 1] - merged.tolerance_V;
       });

@@ -237,5 +237,20 @@ TEST(IdentifyGlobal, RulesAtMostLimitsTheRules) {
   EXPECT_LE(limited.structure.knots_V.size(), 2u) << limited.reason;
 }
 
+// Smooth rules say where they hand over unseen: the plant's gain changes between 2 and
+// 4 V, and levels 1, 2, 4 and 5 V leave that gap unvisited.
+TEST(IdentifyGlobal, SmoothRulesSayWhenTheirHandOverIsNotInTheData) {
+  GlobalIdentifyOptions options;
+  options.rules_at_most = 2;
+  const GlobalEstimate e = IdentifyGlobalTs(
+      {Staircase("gap.csv", 9, {1.0, 2.0, 4.0, 5.0, 0.0, 4.0, 1.0, 5.0, 2.0})}, options);
+  ASSERT_EQ(e.structure.membership, MembershipShape::kGaussian) << e.structure.Describe();
+  bool said = false;
+  for (const std::string& w : e.warnings)
+    said |= w.rfind("between 2 and 4 V the DC gain changes", 0) == 0 &&
+            w.find("where the rules hand over is not in the data") != std::string::npos;
+  EXPECT_TRUE(said) << ::testing::PrintToString(e.warnings);
+}
+
 }  // namespace
 }  // namespace flexid::model
