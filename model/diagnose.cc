@@ -900,6 +900,25 @@ bool SizeDetermined(const Effect& effect, const Eigen::MatrixXd& covariance,
   return determined;
 }
 
+// Where an effect acts: where what it adds (delta) reaches half the noise and 0.3 of its
+// peak; for a relaxation, which acts during holds, the holds where it does.
+std::vector<TimeSpan> WhereItActs(const Data& data, std::span<const double> delta,
+                                  EffectKind kind) {
+  double peak = 0.0;
+  for (double d : delta) peak = std::max(peak, std::abs(d));
+  const double threshold = std::max(0.5 * data.noise_mm, 0.3 * peak);
+  if (kind != EffectKind::kBackRelaxation && kind != EffectKind::kCreep)
+    return Spans(*data.rec, delta, threshold, 2.0);
+  std::vector<TimeSpan> where;
+  for (const Plateau& p : data.levels.plateaus) {
+    if (p.level < 0 || p.end > delta.size()) continue;
+    double largest = 0.0;
+    for (size_t k = p.begin; k < p.end; ++k) largest = std::max(largest, std::abs(delta[k]));
+    if (largest >= threshold) where.push_back({p.t_start_s, p.t_end_s});
+  }
+  return where;
+}
+
 // -----------------------------------------------------------------------------------------
 // Reading a free fit against the physics chain
 // -----------------------------------------------------------------------------------------
@@ -1040,11 +1059,11 @@ std::string Explain(const Effect& e, const Data& data, std::span<const double> d
 // Without a trusted model: the whole T-S model identified on the training samples by the
 // global fit (identify_global.h, the path `flexid identify` and flexidd take), its
 // structure chosen on held-out blocks of the training samples. Notes go to result->notes.
-// `higher`: the baseline's structure with one more pole and zero, premise and realisation
-// as chosen (for the back-relaxation test below); notes are then not added.
+// `higher_than`: a baseline already identified; its structure with one more pole and zero,
+// premise, realisation and dead time as chosen (for the back-relaxation test below); notes
+// are then not added.
 GlobalEstimate IdentifyBaseline(const Recording& rec, const Data& data, Diagnosis* result,
-                                const GlobalStructure* higher = nullptr,
-                                double higher_delay_s = 0.0) {
+                                const GlobalEstimate* higher_than = nullptr) {
   const size_t n = rec.t_s.size();
   // The held-out deflection never reaches the identification: the samples there are
   // excluded from every fit (they are simulated through, so the state carries over) and
@@ -1067,7 +1086,8 @@ GlobalEstimate IdentifyBaseline(const Recording& rec, const Data& data, Diagnosi
   // The seed's blend: one rule, or two handing over smoothly (Eq. 19), never a gain per
   // level (identify_global.h, rules_at_most).
   identify.rules_at_most = 2;
-  if (higher) {
+  if (higher_than) {
+    const GlobalStructure* higher = &higher_than->structure;
     identify.num_zeros = higher->num_zeros + 1;
     identify.num_poles = higher->num_poles + 1;
     // (Parallel rules read the voltage as it is applied: no premise to fix.) The dead time
@@ -1075,7 +1095,7 @@ GlobalEstimate IdentifyBaseline(const Recording& rec, const Data& data, Diagnosi
     // an identification's time.
     if (higher->realisation == TsRealisation::kFrozen) identify.premise = higher->premise;
     identify.realisation = higher->realisation;
-    identify.fixed_delay_s = higher_delay_s;
+    identify.fixed_delay_s = higher_than->delay_s.value;
   }
   for (const TimeSpan& s : result->heldout)
     identify.excluded_spans_s.emplace_back(s.t_start_s, s.t_end_s + 0.5 * data.dt_s);
@@ -1085,7 +1105,7 @@ GlobalEstimate IdentifyBaseline(const Recording& rec, const Data& data, Diagnosi
   } catch (const InputError& e) {
     throw InputError(std::string("no baseline could be identified: ") + e.what());
   }
-  if (higher) return estimate;
+  if (higher_than) return estimate;
   result->notes.push_back("baseline: " + estimate.structure.Describe() + " (" + estimate.reason +
                           ")");
   for (const std::string& w : estimate.warnings) result->notes.push_back("baseline: " + w);
@@ -1305,8 +1325,7 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
     // waves were flagged when it was tried everywhere).
     if (estimate.structure.num_poles < 6) {
       try {
-        const GlobalEstimate more =
-            IdentifyBaseline(rec, data, &result, &estimate.structure, estimate.delay_s.value);
+        const GlobalEstimate more = IdentifyBaseline(rec, data, &result, &estimate);
         const std::vector<Absorbed> fall = ReadAgainstPhysics(more.model, data.noise_mm);
         relaxation_asked = !fall.empty();
         result.notes.push_back(
@@ -1591,7 +1610,7 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
         Misfit misfit;
         misfit.resembles = report.name;
         misfit.rms_mm = report.effect_rms_mm;
-        misfit.where = Spans(rec, delta, std::max(0.5 * data.noise_mm, 0.3 * peak), 2.0);
+        misfit.where = WhereItActs(data, delta, report.kind);
         misfit.explanation = "a misfit of " + Mm(report.effect_rms_mm) + " that " + report.name +
                              " would explain, but its size is not determined (" + size + ")";
         result.unexplained.push_back(std::move(misfit));
@@ -1625,21 +1644,7 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
     finding.heldout_rmse_after_mm = report.heldout_rmse_mm;
     finding.model = fit.model.effects.back();
     const std::vector<double> delta = WhatTheLastEffectAdds(data, fit);
-    double peak = 0.0;
-    for (double d : delta) peak = std::max(peak, std::abs(d));
-    const double where_threshold = std::max(0.5 * data.noise_mm, 0.3 * peak);
-    if (finding.model.kind == EffectKind::kBackRelaxation ||
-        finding.model.kind == EffectKind::kCreep) {
-      // A relaxation acts during holds: the holds where it departs from the model.
-      for (const Plateau& p : data.levels.plateaus) {
-        if (p.level < 0 || p.end > n) continue;
-        double largest = 0.0;
-        for (size_t k = p.begin; k < p.end; ++k) largest = std::max(largest, std::abs(delta[k]));
-        if (largest >= where_threshold) finding.where.push_back({p.t_start_s, p.t_end_s});
-      }
-    } else {
-      finding.where = Spans(rec, delta, where_threshold, 2.0);
-    }
+    finding.where = WhereItActs(data, delta, finding.model.kind);
     finding.explanation = Explain(finding.model, data, delta, finding.heldout_rmse_before_mm,
                                   finding.heldout_rmse_after_mm, model_words);
     // Parameters of earlier findings move slightly in the joint refit.
