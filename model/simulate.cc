@@ -5,6 +5,7 @@
 #include <cmath>
 #include <deque>
 #include <limits>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <unordered_map>
@@ -58,10 +59,10 @@ struct OperatingPoint {
   Eigen::VectorXd remap;
 };
 
-OperatingPoint OperatingPointAt(const TsModel& model, double z) {
+OperatingPoint OperatingPointAt(const TsModel& model, const PreparedRules& prepared, double z) {
   OperatingPoint op;
   NormalisedMemberships(model, z, &op.mu);
-  const TransferFunction frozen = BlendedTransferFunction(model, op.mu);
+  const TransferFunction frozen = BlendedTransferFunction(model, prepared, op.mu);
   op.ss = RealiseOutputDerivativeForm(frozen);
   op.remap = MarkovParameters(frozen).head(op.ss.A.rows());
   return op;
@@ -111,8 +112,9 @@ struct UniformEntry {
 };
 
 template <int N>
-UniformEntry<N> MakeUniformEntry(const TsModel& model, double z, double dt_s) {
-  OperatingPoint op = OperatingPointAt(model, z);
+UniformEntry<N> MakeUniformEntry(const TsModel& model, const PreparedRules& prepared, double z,
+                                 double dt_s) {
+  OperatingPoint op = OperatingPointAt(model, prepared, z);
   const DiscreteModel dm = DiscretiseZoh(op.ss, dt_s);
   UniformEntry<N> e;
   e.Phi = dm.Phi;
@@ -154,18 +156,20 @@ void RunUniform(const TsModel& model, double dt_s, std::span<const double> u,
   padded.insert(padded.end(), u.begin(), u.end());
   const double* up = padded.data() + pad;
 
+  const PreparedRules prepared = PrepareRules(model);
   std::unordered_map<uint64_t, UniformEntry<N>> cache;
   auto entry_for = [&](double z) -> const UniformEntry<N>& {
     const uint64_t key = std::bit_cast<uint64_t>(z);
     auto it = cache.find(key);
     if (it != cache.end()) return it->second;
     if (cache.size() >= 32768) cache.clear();  // bounds memory (about 8 MB)
-    return cache.emplace(key, MakeUniformEntry<N>(model, z, dt_s)).first->second;
+    return cache.emplace(key, MakeUniformEntry<N>(model, prepared, z, dt_s)).first->second;
   };
 
   Scheduler scheduler(model);
-  Vec x = InitialState(OperatingPointAt(model, OperatingZ(scheduler, u_before, resolution_V)).ss,
-                       u_before);
+  Vec x = InitialState(
+      OperatingPointAt(model, prepared, OperatingZ(scheduler, u_before, resolution_V)).ss,
+      u_before);
   const long count = static_cast<long>(u.size());
   if (memberships) memberships->resize(u.size() * m);
 
@@ -360,6 +364,7 @@ struct StreamingSimulator::Impl {
     std::unordered_map<uint64_t, ZohStep> steps;
   };
   std::unordered_map<uint64_t, Point> points;
+  std::optional<PreparedRules> prepared;          // the model's rules, once (PrepareRules)
   Point* point = nullptr;                         // in force since the last sample
   std::deque<std::pair<double, double>> history;  // (t_j, u_j), increasing t_j
 
@@ -377,7 +382,8 @@ struct StreamingSimulator::Impl {
     auto it = points.find(key);
     if (it == points.end()) {
       if (points.size() >= 32768) points.clear();
-      it = points.emplace(key, Point{OperatingPointAt(model, z), {}}).first;
+      if (!prepared) prepared = PrepareRules(model);
+      it = points.emplace(key, Point{OperatingPointAt(model, *prepared, z), {}}).first;
     }
     point = &it->second;
   }
@@ -553,6 +559,11 @@ std::vector<double> SimulateUniform(const TransferFunction& tf, double dt_s,
                                     std::span<const double> voltage_V,
                                     const SimulationOptions& options) {
   return SimulateUniform(SingleRule(tf), dt_s, voltage_V, options);
+}
+
+double SchedulingResolutionFor(double max_abs_V, bool plateau_input) {
+  return plateau_input ? kSchedulingResolution_V
+                       : std::max(kSchedulingResolution_V, std::abs(max_abs_V) / 256.0);
 }
 
 std::vector<double> Simulate(const TsModel& model, std::span<const double> t_s,

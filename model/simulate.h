@@ -36,6 +36,14 @@ struct SimulationOptions {
   double scheduling_resolution_V = kSchedulingResolution_V;
 };
 
+// The scheduling resolution for an input whose largest |u| is max_abs_V:
+// kSchedulingResolution_V for an input held on plateaus; for one that varies continuously
+// (a chirp, a ramp) a 256th of max_abs_V when that is coarser, so that a simulation
+// discretises a few hundred operating points rather than one per sample (a 77,000-sample
+// chirp in kV spent three quarters of its diagnosis discretising). Identification and
+// diagnosis both use it, so that a model is simulated as it was fitted.
+double SchedulingResolutionFor(double max_abs_V, bool plateau_input);
+
 // Predicted output at each t_s[k] for voltage_V[k] held on [t_k, t_{k+1}).
 // Preconditions (checked, std::invalid_argument): IsValid(model); equal lengths;
 // t_s strictly increasing and finite; voltages finite.

@@ -255,7 +255,25 @@ TransferFunction ParallelSum(const TsModel& model, const std::vector<double>& mu
 
 }  // namespace
 
+PreparedRules PrepareRules(const TsModel& model) {
+  PreparedRules prepared;
+  if (model.realisation == TsRealisation::kParallel) return prepared;
+  for (const LocalModel& rule : model.rules) {
+    prepared.normalised.push_back(Normalised(rule.tf));
+    const TransferFunction& local = prepared.normalised.back();
+    prepared.factors.push_back(RealFactors(local.den));
+    prepared.dc_gain.push_back(local.den.back() != 0.0 ? DcGain(local) : 0.0);
+  }
+  return prepared;
+}
+
 TransferFunction BlendedTransferFunction(const TsModel& model, const std::vector<double>& mu) {
+  if (model.realisation == TsRealisation::kParallel) return ParallelSum(model, mu);
+  return BlendedTransferFunction(model, PrepareRules(model), mu);
+}
+
+TransferFunction BlendedTransferFunction(const TsModel& model, const PreparedRules& prepared,
+                                         const std::vector<double>& mu) {
   if (model.realisation == TsRealisation::kParallel) return ParallelSum(model, mu);
   const size_t order = static_cast<size_t>(Order(model.rules.front().tf));
   // Weighted sums of the real factors, the gain-normalised numerators, gains and delays.
@@ -265,8 +283,8 @@ TransferFunction BlendedTransferFunction(const TsModel& model, const std::vector
   bool normalisable = true;
   for (size_t i = 0; i < model.rules.size(); ++i) {
     if (mu[i] == 0.0) continue;
-    const TransferFunction local = Normalised(model.rules[i].tf);
-    const std::vector<std::vector<double>> local_factors = RealFactors(local.den);
+    const TransferFunction& local = prepared.normalised[i];
+    const std::vector<std::vector<double>>& local_factors = prepared.factors[i];
     if (factors.empty()) {
       factors = local_factors;
       for (auto& f : factors)
@@ -281,7 +299,7 @@ TransferFunction BlendedTransferFunction(const TsModel& model, const std::vector
       plain[offset + j] += mu[i] * local.num[j];
       if (num0 != 0.0) shape[offset + j] += mu[i] * local.num[j] / num0;
     }
-    if (local.den.back() != 0.0) gain += mu[i] * DcGain(local);
+    if (local.den.back() != 0.0) gain += mu[i] * prepared.dc_gain[i];
     delay_s += mu[i] * local.delay_s;
   }
   std::vector<double> den = {1.0};

@@ -233,6 +233,15 @@ TEST(Simulate, ProperModelFeedthroughUsesTheDelayedInput) {
   ExpectVectorsNear(y, {0, 0, 2, 4, 6}, 1e-12);
 }
 
+TEST(Simulate, SchedulingResolutionIsCoarseOnlyForContinuousInputs) {
+  EXPECT_EQ(SchedulingResolutionFor(8.0, true), kSchedulingResolution_V);
+  EXPECT_EQ(SchedulingResolutionFor(5000.0, true), kSchedulingResolution_V);
+  EXPECT_DOUBLE_EQ(SchedulingResolutionFor(5120.0, false), 20.0);
+  EXPECT_DOUBLE_EQ(SchedulingResolutionFor(-5120.0, false), 20.0);
+  // Never finer than the default: a continuous input of 0.1 V keeps 1 mV.
+  EXPECT_EQ(SchedulingResolutionFor(0.1, false), kSchedulingResolution_V);
+}
+
 TEST(Simulate, RejectsBadSeries) {
   const TransferFunction tf = SeedModel2V();
   const std::vector<double> t_s = {0.0, 0.1, 0.1};

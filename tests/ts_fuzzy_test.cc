@@ -107,6 +107,20 @@ TEST(TsModel, FrozenModelsBetweenLevelsStayStableWithMonotoneGain) {
   EXPECT_NEAR(previous_gain, DcGain(SeedModel8V()), 1e-9);
 }
 
+TEST(TsModel, PreparedRulesBlendBitForBitAsTheRulesThemselves) {
+  const TsModel ts = SeedTsModel();
+  const PreparedRules prepared = PrepareRules(ts);
+  std::vector<double> mu;
+  for (double z = 0.0; z <= 9.0; z += 0.37) {
+    NormalisedMemberships(ts, z, &mu);
+    const TransferFunction once = BlendedTransferFunction(ts, prepared, mu);
+    const TransferFunction each = BlendedTransferFunction(ts, mu);
+    EXPECT_EQ(once.num, each.num) << "z = " << z;
+    EXPECT_EQ(once.den, each.den) << "z = " << z;
+    EXPECT_EQ(once.delay_s, each.delay_s) << "z = " << z;
+  }
+}
+
 TEST(TsModel, StepAcrossTheRuleBoundaryDoesNotBump) {
   // 4 V held until steady, then 6 V (across the seed's 5 V boundary). During the dead
   // time after the step the delayed input has not changed, so only the switch of the
