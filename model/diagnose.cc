@@ -28,6 +28,9 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 // Step-timing nuisance regressors at most (Diagnose): bounds their matrix to 64 doubles a
 // sample (39 MB for 77,000 samples).
 constexpr size_t kMaxTimedSteps = 64;
+// The identified baseline may fall back by at most this share of a step (identify_global.h,
+// max_fall_back): the 1 % below which ReadAgainstPhysics reads no fall-back.
+constexpr double kBaselineFallBack = 0.01;
 
 // -----------------------------------------------------------------------------------------
 // The catalogue
@@ -923,51 +926,6 @@ std::vector<TimeSpan> WhereItActs(const Data& data, std::span<const double> delt
 }
 
 // -----------------------------------------------------------------------------------------
-// Reading a free fit against the physics chain
-// -----------------------------------------------------------------------------------------
-
-// The physics chain (Eqs. 11-13) predicts real poles and a step response that rises to
-// its final value without falling back. A free fit that shows a fall-back has absorbed
-// back-relaxation (a slow pole-zero pair). Measured on the exact step response after the
-// fast transients (5 time constants of every mode faster than 5 s, oscillatory ones
-// included, after the dead time): the largest excess over the final value, as a share of
-// it, and the time constant of the decay from the peak back to the final value.
-struct FallBack {
-  double share = 0.0;
-  double peak_time_s = 0.0;
-  double tau_s = 0.0;
-};
-
-FallBack StepFallBack(const TransferFunction& tf) {
-  FallBack result;
-  const double K = DcGain(tf);
-  if (!std::isfinite(K) || K == 0.0) return result;
-  double fast = 2.0, slowest = 0.0;
-  for (const Mode& m : Modes(tf)) {
-    slowest = std::max(slowest, m.time_constant_s);
-    if (m.oscillatory || m.time_constant_s < 5.0) fast = std::max(fast, m.time_constant_s);
-  }
-  const double begin = tf.delay_s + 5.0 * fast, end = tf.delay_s + 6.0 * std::max(slowest, fast);
-  if (!(end > begin)) return result;
-  std::vector<double> t;
-  for (int i = 0; i <= 2000; ++i) t.push_back(begin + (end - begin) * i / 2000.0);
-  const std::vector<double> s = StepResponse(tf, t);
-  size_t peak = 0;
-  for (size_t i = 0; i < s.size(); ++i)
-    if ((s[i] - K) / K > (s[peak] - K) / K) peak = i;
-  result.share = std::max(0.0, (s[peak] - K) / K);
-  result.peak_time_s = t[peak];
-  // Time to fall to 1/e of the excess.
-  for (size_t i = peak; i < s.size(); ++i)
-    if ((s[i] - K) / K <= result.share / std::exp(1.0)) {
-      result.tau_s = t[i] - t[peak];
-      break;
-    }
-  if (result.tau_s == 0.0) result.share = 0.0;  // still rising at the end: no fall-back
-  return result;
-}
-
-// -----------------------------------------------------------------------------------------
 // Explanations
 // -----------------------------------------------------------------------------------------
 
@@ -1089,6 +1047,9 @@ GlobalEstimate IdentifyBaseline(const Recording& rec, const Data& data, Diagnosi
   // The seed's blend: one rule, or two handing over smoothly (Eq. 19), never a gain per
   // level (identify_global.h, rules_at_most).
   identify.rules_at_most = 2;
+  // The physics chain's step response cannot fall back (Eqs. 11-13): a baseline that
+  // does has absorbed back-relaxation, and the effect is then never seen.
+  identify.max_fall_back = higher_than ? 0.0 : kBaselineFallBack;
   // One more pole and zero than the baseline, everything else kept and its dead time
   // fixed: the question is the slow dynamics, and one fit from where the baseline ended
   // answers it (a second selection would cost as much as the first).

@@ -26,7 +26,9 @@
 //     against the baseline refitted the same way without an effect, or against the best of
 //     the candidates' refits with their effect removed when one of them landed in a better
 //     optimum (the gain is then the optimiser's, not the effect's). Without a trusted
-//     model back-relaxation is tried only where a free fit with one more pole and zero
+//     model the baseline is identified under the physics chain's prior (max_fall_back
+//     1 %: no rule's step response may fall back), and back-relaxation is tried only
+//     where a free fit with one more pole and zero
 //     (GlobalIdentifyOptions::raise_order_of: the baseline's structure, one fit from four
 //     starts) falls back and predicts the held-out samples better than the baseline (the
 //     physics chain's step response cannot fall back, Eqs. 11-13); elsewhere a slow

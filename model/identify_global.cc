@@ -91,6 +91,7 @@ struct Problem {
   double max_delay_s = 10.0;
   std::optional<double> fixed_delay_s;
   int max_iterations = 60;
+  double max_fall_back = 0.0;  // GlobalIdentifyOptions::max_fall_back
 };
 
 size_t Count(const Mask& mask) {
@@ -457,6 +458,20 @@ std::string SwitchingProblem(const TsModel& model, const Problem& problem,
       }
     }
   return text;
+}
+
+// Above a share `limit` (> 0), the first rule whose step response falls back by more, in
+// words; "" if none does (GlobalIdentifyOptions::max_fall_back).
+std::string FallBackProblem(const TsModel& model, double limit) {
+  if (!(limit > 0.0)) return "";
+  for (const LocalModel& rule : model.rules) {
+    const FallBack fall = StepFallBack(rule.tf);
+    if (fall.share > limit)
+      return "its model at " + Volts(rule.level_V) + " V falls back by " +
+             Volts(100.0 * fall.share) + " % of its final value (" + Volts(fall.tau_s) +
+             " s), which the physics chain's step response cannot";
+  }
+  return "";
 }
 
 struct FitResult {
@@ -844,6 +859,12 @@ class Selector {
             trial.problem = swing;
             continue;
           }
+          if (const std::string fall = FallBackProblem(
+                  layout.Model(fit.theta.data(), problem_.rest_band_V), problem_.max_fall_back);
+              !fall.empty()) {
+            trial.problem = fall;
+            continue;
+          }
           if (i >= given) ++plausible;
           if (fit.ssr < best.ssr) best = std::move(fit);
         } catch (const InputError& e) {
@@ -1172,6 +1193,8 @@ bool GlobalIdentifyOptions::IsValid(std::string* error) const {
     return fail("the fixed dead time must be finite and >= 0");
   if (max_iterations < 1) return fail("max_iterations must be >= 1");
   if (max_selection_factor < 1) return fail("max_selection_factor must be >= 1");
+  if (!(max_fall_back >= 0.0) || !std::isfinite(max_fall_back))
+    return fail("max_fall_back must be finite and >= 0");
   if (raise_order_of && (raise_order_of->theta.empty() || raise_order_of->structure.num_poles >= 6))
     return fail("raise_order_of: needs a fitted estimate with at most 5 poles");
   if (premise && *premise == SchedulingVariable::kVoltage)
@@ -1207,6 +1230,7 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
   problem.max_delay_s = options.max_delay_s;
   problem.fixed_delay_s = options.fixed_delay_s;
   problem.max_iterations = options.max_iterations;
+  problem.max_fall_back = options.max_fall_back;
   std::vector<LevelAnalysis> analyses;
   double longest_s = 0.0;
   const std::vector<UniformRecording> uniform = OnCommonUniformGrid(recordings, &result.notes);

@@ -183,6 +183,11 @@ struct GlobalIdentifyOptions {
   // outlive the call. The diagnosis asks this way whether free dynamics fall back: a
   // second selection would cost as much as the first (a minute on 77,000 samples).
   const GlobalEstimate* raise_order_of = nullptr;
+  // The physics chain's prior (Eqs. 11-13): a step response rises to its final value
+  // without falling back. Above 0, a structure whose fit at any rule falls back by more
+  // than this share of its final value (StepFallBack) is not admissible, as one that
+  // swings on switching is not. 0: any step response.
+  double max_fall_back = 0.0;
   bool IsValid(std::string* error) const;
 };
 

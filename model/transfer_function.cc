@@ -115,4 +115,33 @@ std::vector<double> StepResponse(const TransferFunction& tf, const std::vector<d
   return y;
 }
 
+FallBack StepFallBack(const TransferFunction& tf) {
+  FallBack result;
+  const double K = DcGain(tf);
+  if (!std::isfinite(K) || K == 0.0) return result;
+  double fast = 2.0, slowest = 0.0;
+  for (const Mode& m : Modes(tf)) {
+    slowest = std::max(slowest, m.time_constant_s);
+    if (m.oscillatory || m.time_constant_s < 5.0) fast = std::max(fast, m.time_constant_s);
+  }
+  const double begin = tf.delay_s + 5.0 * fast, end = tf.delay_s + 6.0 * std::max(slowest, fast);
+  if (!(end > begin)) return result;
+  std::vector<double> t;
+  for (int i = 0; i <= 2000; ++i) t.push_back(begin + (end - begin) * i / 2000.0);
+  const std::vector<double> s = StepResponse(tf, t);
+  size_t peak = 0;
+  for (size_t i = 0; i < s.size(); ++i)
+    if ((s[i] - K) / K > (s[peak] - K) / K) peak = i;
+  result.share = std::max(0.0, (s[peak] - K) / K);
+  result.peak_time_s = t[peak];
+  // Time to fall to 1/e of the excess.
+  for (size_t i = peak; i < s.size(); ++i)
+    if ((s[i] - K) / K <= result.share / std::exp(1.0)) {
+      result.tau_s = t[i] - t[peak];
+      break;
+    }
+  if (result.tau_s == 0.0) result.share = 0.0;  // still rising at the end: no fall-back
+  return result;
+}
+
 }  // namespace flexid::model

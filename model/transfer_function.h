@@ -53,4 +53,18 @@ std::complex<double> FrequencyResponse(const TransferFunction& tf, double omega_
 // non-decreasing). Exact: computed with the matrix exponential, not by integration.
 std::vector<double> StepResponse(const TransferFunction& tf, const std::vector<double>& t_s);
 
+// The physics chain (Eqs. 11-13) predicts real poles and a step response that rises to
+// its final value without falling back; a fitted model that falls back has a slow
+// pole-zero pair (back-relaxation, or model order). Measured on the exact step response
+// after the fast transients (5 time constants of every mode faster than 5 s, oscillatory
+// ones included, after the dead time): the largest excess over the final value, as a
+// share of it, and the time constant of the decay from the peak back to the final value
+// (share 0: no fall-back, or still rising at the end).
+struct FallBack {
+  double share = 0.0;
+  double peak_time_s = 0.0;
+  double tau_s = 0.0;
+};
+FallBack StepFallBack(const TransferFunction& tf);
+
 }  // namespace flexid::model

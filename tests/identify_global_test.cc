@@ -270,6 +270,34 @@ TEST(IdentifyGlobal, RaisedOrderKeepsTheStructureAndFitsNoWorse) {
   EXPECT_THROW(IdentifyGlobalTs({rec}, options), std::invalid_argument);
 }
 
+// The physics chain's prior: with max_fall_back, no chosen rule falls back further, where
+// a free fit of a relaxing plant (a slow zero under its slow pole) does.
+TEST(IdentifyGlobal, MaxFallBackKeepsTheStepResponseFromFallingBack) {
+  // Poles at 0.2 and 0.02 rad/s, a zero at 0.012 rad/s: the step overshoots by about 60 %
+  // of its final value and falls back over a minute or so.
+  const TransferFunction plant{{1.0 / 0.012 * 0.004, 0.004}, {1.0, 0.22, 0.004}, 1.0};
+  ASSERT_GT(StepFallBack(plant).share, 0.2);
+  Recording rec;
+  rec.source = "relaxing.csv";
+  for (int k = 0; k < 2400; ++k) {
+    rec.t_s.push_back(0.5 * k);
+    rec.voltage_V.push_back((k / 600) % 2 == 1 ? 3.0 : 0.0);
+  }
+  rec.deflection_mm = Simulate(plant, rec.t_s, rec.voltage_V);
+  testing::Gaussian noise(21);
+  for (double& y : rec.deflection_mm) y += 0.01 * noise();
+  const GlobalEstimate free = IdentifyGlobalTs({rec});
+  EXPECT_GT(StepFallBack(free.model.rules.front().tf).share, 0.2) << free.structure.Describe();
+  GlobalIdentifyOptions options;
+  options.max_fall_back = 0.01;
+  const GlobalEstimate held = IdentifyGlobalTs({rec}, options);
+  for (const LocalModel& rule : held.model.rules)
+    EXPECT_LE(StepFallBack(rule.tf).share, 0.01) << held.structure.Describe();
+  EXPECT_GT(held.fit.rmse_mm, 2.0 * free.fit.rmse_mm);  // what it cannot express stays out
+  options.max_fall_back = -1.0;
+  EXPECT_FALSE(options.IsValid(nullptr));
+}
+
 // Smooth rules say where they hand over unseen: the plant's gain changes between 2 and
 // 4 V, and levels 1, 2, 4 and 5 V leave that gap unvisited.
 TEST(IdentifyGlobal, SmoothRulesSayWhenTheirHandOverIsNotInTheData) {
