@@ -279,6 +279,11 @@ struct Data {
   double max_abs_V = 0.0;
   double rest_band_V = 0.0;
   double resolution_V = kSchedulingResolution_V;  // scheduling (SchedulingResolutionFor)
+  SimulationOptions Simulation() const {
+    SimulationOptions options;
+    options.scheduling_resolution_V = resolution_V;
+    return options;
+  }
   LevelAnalysis levels;
   std::vector<double> abs_levels_V;  // distinct |level|, ascending
   double duration_s = 0.0;
@@ -326,9 +331,7 @@ std::vector<double> Predict(const Data& data, const Augmented& a,
   if (!any_input && cache && !a.refit) {
     y = *cache;  // the baseline with the given effects
   } else {
-    SimulationOptions simulation;
-    simulation.scheduling_resolution_V = data.resolution_V;
-    y = Simulate(a.Baseline(), rec.t_s, u, simulation);
+    y = Simulate(a.Baseline(), rec.t_s, u, data.Simulation());
     for (const Effect& e : data.given) output_effect(e, &y);
   }
   for (const Effect& e : a.effects) output_effect(e, &y);
@@ -1344,9 +1347,7 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
       for (size_t e = 0; e < edges.size(); ++e) {
         std::vector<double> u = rec.voltage_V;
         u[edges[e] - 1] += 0.5 * (u[edges[e]] - u[edges[e] - 1]);
-        SimulationOptions simulation;
-        simulation.scheduling_resolution_V = data.resolution_V;
-        const std::vector<double> y = Simulate(baseline, rec.t_s, u, simulation);
+        const std::vector<double> y = Simulate(baseline, rec.t_s, u, data.Simulation());
         for (size_t k = 0; k < n; ++k)
           g(static_cast<long>(k), static_cast<long>(e)) = y[k] - result.baseline_mm[k];
       }
