@@ -100,6 +100,7 @@
 #include <thread>
 #include <vector>
 
+#include "bus/clock.h"
 #include "daemon/config.h"
 #include "daemon/daemon.h"
 #include "lcmtypes/message_auth.h"
@@ -418,7 +419,7 @@ class Publisher {
     c.actuator_id = ActuatorId(actuator);
     c.action = action;
     c.protocol = protocol;
-    c.sent_utime = flexid::auth::WallClockUtime();
+    c.sent_utime = flexid::bus::WallClockUtime();
     flexid::auth::Sign(key_, &c);
     if (lcm_.publish("FLEXID/TRIAL", &c) != 0) ++report_.publish_failures;
   }
@@ -578,7 +579,7 @@ class Subscriber {
     request.client_id = kClientId;
     request.method = method;
     request.args_json = args.dump();
-    request.utime = flexid::auth::WallClockUtime();
+    request.utime = flexid::bus::WallClockUtime();
     if (flexid::auth::ChangesData(method)) flexid::auth::Sign(key_, &request);  // "identify"
     std::unique_lock lock(mutex_);
     if (sent) *sent = Clock::now();

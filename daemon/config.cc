@@ -12,6 +12,8 @@
 #include <set>
 #include <sstream>
 
+#include "bus/ids.h"
+
 namespace flexid::daemon {
 namespace {
 
@@ -163,16 +165,17 @@ Config ParseConfigText(std::string_view text, const std::string& path) {
   return c;
 }
 
-bool IsValidId(const std::string& id) {
+// The daemon id and the channel prefix: the id rule, '.' allowed too.
+bool IsValidName(const std::string& id) {
   static const std::regex pattern("[A-Za-z0-9_.-]{1,64}");
   return std::regex_match(id, pattern);
 }
 
 void Validate(const Config& c) {
-  if (!IsValidId(c.daemon_id)) Fail("daemon_id", "expected 1-64 characters of [A-Za-z0-9_.-]");
+  if (!IsValidName(c.daemon_id)) Fail("daemon_id", "expected 1-64 characters of [A-Za-z0-9_.-]");
   if (c.database.empty()) Fail("database", "must not be empty");
   if (c.lcm_url.empty()) Fail("lcm_url", "must not be empty");
-  if (!IsValidId(c.channel_prefix))
+  if (!IsValidName(c.channel_prefix))
     Fail("channel_prefix", "expected 1-64 characters of [A-Za-z0-9_.-]");
   if (c.commit_interval_ms < 1 || c.commit_interval_ms > 200)
     Fail("commit_interval_ms", "must be 1..200 (DESIGN.md: loss window <= 200 ms)");
@@ -210,8 +213,7 @@ void Validate(const Config& c) {
     Fail("health.writer_queue_samples", "must be 100 .. 2^26");
   std::set<std::string> seen;
   for (const storage::Actuator& a : c.actuators) {
-    if (!IsValidId(a.id))
-      Fail("actuators", "id \"" + a.id + "\": expected 1-64 characters of [A-Za-z0-9_.-]");
+    if (!bus::IsValidId(a.id)) Fail("actuators", "id \"" + a.id + "\": expected " + bus::kIdRule);
     if (!seen.insert(a.id).second) Fail("actuators", "id \"" + a.id + "\" appears twice");
     for (double v : {a.length_mm, a.width_mm, a.thickness_mm})
       if (!(v > 0.0) || !std::isfinite(v))

@@ -35,6 +35,8 @@
 #include <optional>
 #include <thread>
 
+#include "bus/clock.h"
+#include "bus/ids.h"
 #include "daemon/health.h"
 #include "daemon/rpc.h"
 #include "flexid/version.h"
@@ -76,12 +78,6 @@ constexpr int kBackgroundNice = 10;
 std::string WithReceiveBuffer(const std::string& url) {
   if (url.rfind("udpm://", 0) != 0 || url.find("recv_buf_size") != std::string::npos) return url;
   return url + (url.find('?') == std::string::npos ? "?" : "&") + "recv_buf_size=8388608";
-}
-
-int64_t WallClockUtime() {
-  return std::chrono::duration_cast<std::chrono::microseconds>(
-             std::chrono::system_clock::now().time_since_epoch())
-      .count();
 }
 
 // The verifier of signed requests, with the key from the configured file (created when
@@ -372,7 +368,7 @@ struct Daemon::Impl {
   ActuatorState* KnownOrNewActuator(const std::string& message_id) {
     auto it = actuators.find(message_id);
     if (it != actuators.end()) return &it->second;
-    if (!config.accept_unknown_actuators || !IsValidClientId(message_id)) {
+    if (!config.accept_unknown_actuators || !bus::IsValidId(message_id)) {
       ++counters.rejected_unknown_actuator;
       return nullptr;
     }
@@ -467,7 +463,7 @@ struct Daemon::Impl {
     }
     flexid::trial_control2_t message;
     if (!Decode(rbuf, &message, wire::kTrialControl2)) return;
-    const std::string refusal = verifier.Check(message, auth::WallClockUtime());
+    const std::string refusal = verifier.Check(message, bus::WallClockUtime());
     if (!refusal.empty()) {
       ++counters.refused_unauthorized;
       spdlog::warn(
@@ -622,7 +618,7 @@ struct Daemon::Impl {
     // one is logged with its outcome. Read-only methods need none (an `auth` is ignored).
     const bool changes_data = ChangesData(request.method);
     if (changes_data) {
-      const std::string refusal = verifier.Check(request, auth::WallClockUtime());
+      const std::string refusal = verifier.Check(request, bus::WallClockUtime());
       if (!refusal.empty()) {
         ++counters.refused_unauthorized;
         spdlog::warn(
@@ -648,9 +644,9 @@ struct Daemon::Impl {
   }
 
   void Reply(const RpcContext& context, const RpcOutcome& outcome) {
-    if (!IsValidClientId(context.client_id)) return;  // nowhere to reply to
+    if (!bus::IsValidId(context.client_id)) return;  // nowhere to reply to
     flexid::rpc_reply_t reply;
-    reply.utime = WallClockUtime();
+    reply.utime = bus::WallClockUtime();
     reply.request_id = context.request_id;
     reply.daemon_id = config.daemon_id;
     reply.status = outcome.status;
@@ -752,7 +748,7 @@ struct Daemon::Impl {
     int64_t latest = kNoTime;
     for (const auto& [id, state] : actuators)
       latest = std::max({latest, state.voltage_utime, state.deflection_utime});
-    return latest != kNoTime ? latest : WallClockUtime();
+    return latest != kNoTime ? latest : bus::WallClockUtime();
   }
 
   // Publishes, counts and logs a health alert, and stores it unless storage is failing
@@ -991,7 +987,7 @@ struct Daemon::Impl {
 
   void PublishStatus() {
     flexid::status_t status;
-    status.utime = WallClockUtime();
+    status.utime = bus::WallClockUtime();
     status.daemon_id = config.daemon_id;
     status.version = kVersion;
     status.uptime_s =
@@ -1218,7 +1214,7 @@ IdentifyResult RunIdentification(const std::string& database, const std::string&
     doc.extra["identified_from_trials"] = trial_ids;
     storage::ModelRecord record;
     record.actuator_id = actuator_id;
-    record.created_utime = WallClockUtime();
+    record.created_utime = bus::WallClockUtime();
     record.model_json = model::ModelToJson(doc).dump();
     record.fit_json = fit.dump();
     record.trial_ids = trial_ids;
@@ -1236,7 +1232,7 @@ IdentifyResult RunIdentification(const std::string& database, const std::string&
 
 RpcOutcome Daemon::Impl::HandleRequest(const flexid::rpc_request_t& request) {
   using Reply = flexid::rpc_reply_t;
-  if (!IsValidClientId(request.client_id) || request.request_id.empty() ||
+  if (!bus::IsValidId(request.client_id) || request.request_id.empty() ||
       request.request_id.size() > 128)
     return {Reply::kBadRequest, nullptr,
             "client_id must be [A-Za-z0-9_-]{1,64} and request_id 1-128 characters", false};
@@ -1348,7 +1344,8 @@ RpcOutcome Daemon::Impl::HandleRequest(const flexid::rpc_request_t& request) {
     }
     if (method == "trial_start" || method == "trial_stop") {
       ActuatorState* state = actuator_of(true);
-      const int64_t now = state->voltage_utime != kNoTime ? state->voltage_utime : WallClockUtime();
+      const int64_t now =
+          state->voltage_utime != kNoTime ? state->voltage_utime : bus::WallClockUtime();
       if (method == "trial_start") {
         const std::string fallback = "manual";
         if (state->trial_id != 0) StopTrial(state, now, storage::TrialState::kComplete);

@@ -5,11 +5,6 @@
 
 namespace flexid::daemon {
 
-bool IsValidClientId(const std::string& client_id) {
-  static const std::regex pattern("[A-Za-z0-9_-]{1,64}");
-  return std::regex_match(client_id, pattern);
-}
-
 nlohmann::json ParseArguments(const std::string& args_json) {
   if (args_json.empty()) return nlohmann::json::object();
   nlohmann::json args = nlohmann::json::parse(args_json, nullptr, /*allow_exceptions=*/false);

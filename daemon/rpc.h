@@ -30,9 +30,6 @@ struct RpcOutcome {
   bool deferred = false;  // the reply comes later (identify)
 };
 
-// [A-Za-z0-9_-]{1,64}: client ids name reply channels.
-bool IsValidClientId(const std::string& client_id);
-
 // Typed access to a request's JSON arguments; throws ArgumentError naming the argument.
 struct ArgumentError : std::runtime_error {
   using std::runtime_error::runtime_error;

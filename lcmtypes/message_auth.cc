@@ -176,12 +176,6 @@ std::string RandomNonce() {
   return Hex(bytes, sizeof bytes);
 }
 
-int64_t WallClockUtime() {
-  return std::chrono::duration_cast<std::chrono::microseconds>(
-             std::chrono::system_clock::now().time_since_epoch())
-      .count();
-}
-
 std::string CanonicalForm(const flexid::rpc_request_t& request) {
   std::string out = "flexid.rpc_request_t/1\n";
   AppendField(&out, request.utime);

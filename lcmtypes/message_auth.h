@@ -75,8 +75,6 @@ bool ChangesData(std::string_view method);
 bool IsValidNonce(std::string_view nonce);
 // 128 random bits as 32 hex digits (getrandom(2)).
 std::string RandomNonce();
-// Microseconds since the Unix epoch, from the system (wall) clock.
-int64_t WallClockUtime();
 
 std::string CanonicalForm(const flexid::rpc_request_t& request);
 std::string CanonicalForm(const flexid::trial_control2_t& control);
@@ -87,7 +85,7 @@ std::string Signature(const Key& key, std::string_view canonical);
 bool SignatureMatches(const Key& key, std::string_view canonical, std::string_view auth);
 
 // Fill the nonce (a new random one when empty) and then `auth`. For a request the caller
-// sets utime to its wall clock (WallClockUtime()); for trial control, sent_utime (utime
+// sets utime to its wall clock (bus::WallClockUtime()); for trial control, sent_utime (utime
 // stays message time).
 void Sign(const Key& key, flexid::rpc_request_t* request);
 void Sign(const Key& key, flexid::trial_control2_t* control);

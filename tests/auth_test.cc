@@ -20,6 +20,7 @@
 #include <optional>
 #include <string>
 
+#include "bus/clock.h"
 #include "child_process.h"
 #include "daemon/daemon.h"
 #include "daemon/rpc.h"
@@ -346,7 +347,7 @@ class AuthenticatedDaemon : public ::testing::Test {
   }
   flexid::rpc_request_t Make(const std::string& method, const std::string& args_json) {
     flexid::rpc_request_t r;
-    r.utime = auth::WallClockUtime();
+    r.utime = bus::WallClockUtime();
     r.request_id = "a" + std::to_string(++requests_);
     r.client_id = "auth_test";
     r.method = method;
@@ -359,7 +360,7 @@ class AuthenticatedDaemon : public ::testing::Test {
     c.actuator_id = "S1";
     c.action = action;
     c.protocol = "auth test";
-    c.sent_utime = auth::WallClockUtime();
+    c.sent_utime = bus::WallClockUtime();
     return c;
   }
   size_t StoredTrials() {

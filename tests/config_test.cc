@@ -54,6 +54,10 @@ TEST(Config, BadFilesAreNamedWithTheProblem) {
   EXPECT_NE(ErrorOf(write("dup.toml", "[[actuators]]\nid = \"S1\"\n[[actuators]]\nid = \"S1\"\n"))
                 .find("appears twice"),
             std::string::npos);
+  // Actuator ids name LCM channels: the bus's one rule (bus/ids.h), no '.'.
+  const std::string dotted = ErrorOf(write("dot.toml", "[[actuators]]\nid = \"S.1\"\n"));
+  EXPECT_NE(dotted.find("id \"S.1\": expected 1 to 64 of A-Z a-z 0-9 _ -"), std::string::npos)
+      << dotted;
   EXPECT_NE(ErrorOf(write("geom.toml", "[[actuators]]\nid = \"S1\"\nlength_mm = -4\n"))
                 .find("dimensions"),
             std::string::npos);

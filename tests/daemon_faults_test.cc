@@ -43,6 +43,7 @@
 #include <thread>
 #include <vector>
 
+#include "bus/clock.h"
 #include "child_process.h"
 #include "daemon/daemon.h"
 #include "fault_harness.h"
@@ -297,7 +298,7 @@ class InProcessDaemon : public ::testing::Test {
     // Signed where flexidd asks for it, so that what is tested here is the method itself
     // (tests/auth_test.cc tests the signatures).
     if (auth::ChangesData(method)) {
-      r.utime = auth::WallClockUtime();
+      r.utime = bus::WallClockUtime();
       auth::Sign(key_, &r);
     }
     return r;
@@ -398,7 +399,7 @@ TEST_F(InProcessDaemon, BadInputIsRejectedCountedAndHarmless) {
   control.actuator_id = "S1";
   control.action = 7;
   control.protocol = "bogus";
-  control.sent_utime = auth::WallClockUtime();
+  control.sent_utime = bus::WallClockUtime();
   auth::Sign(key_, &control);
   malformed("FLEXID/TRIAL", Encode(control));
   malformed("FLEXID/RPC/REQUEST", Bytes(text.begin(), text.end()));

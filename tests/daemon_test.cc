@@ -16,6 +16,7 @@
 #include <random>
 #include <thread>
 
+#include "bus/clock.h"
 #include "cli_process.h"
 #include "lcmtypes/message_auth.h"
 #include "scratch_dir.h"
@@ -58,7 +59,7 @@ class Listener {
     request.method = method;
     request.args_json = args.dump();
     if (key && auth::ChangesData(method)) {  // signed with the daemon's key
-      request.utime = auth::WallClockUtime();
+      request.utime = bus::WallClockUtime();
       auth::Sign(*key, &request);
     }
     reply_.reset();

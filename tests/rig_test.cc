@@ -25,11 +25,12 @@
 #include <thread>
 #include <vector>
 
+#include "bus/clock.h"
 #include "cli_process.h"
-#include "lcm_subscribe.h"
 #include "clients/rig/effects.h"
 #include "clients/rig/protocol.h"
 #include "clients/rig/runner.h"
+#include "lcm_subscribe.h"
 #include "lcmtypes/message_auth.h"
 #include "model/errors.h"
 #include "model/presets.h"
@@ -1413,7 +1414,7 @@ struct BusCounter {
     // Signed with the key given, on the wall clock (not the message time of --start-utime).
     signed_ok = signed_ok && key != nullptr &&
                 auth::SignatureMatches(*key, auth::CanonicalForm(*message), message->auth) &&
-                std::abs(message->sent_utime - auth::WallClockUtime()) < 60'000'000;
+                std::abs(message->sent_utime - bus::WallClockUtime()) < 60'000'000;
     Touch();
   }
   void Touch() { last_message = std::chrono::steady_clock::now(); }
@@ -1743,7 +1744,8 @@ TEST_F(RigBinary, SeveralActuatorsPublishOnTheirOwnChannels) {
   const std::string key_flag = KeyFlag();
   for (lcm::Subscription* subscription :
        {testing::SubscribeMember<&ChannelCounter::OnVoltage>(lcm, "FLEXID/.*/VOLTAGE", &counter),
-        testing::SubscribeMember<&ChannelCounter::OnDeflection>(lcm, "FLEXID/.*/DEFLECTION", &counter),
+        testing::SubscribeMember<&ChannelCounter::OnDeflection>(lcm, "FLEXID/.*/DEFLECTION",
+                                                                &counter),
         testing::SubscribeMember<&ChannelCounter::OnTrial>(lcm, "FLEXID/TRIAL", &counter)})
     subscription->setQueueCapacity(100000);
   lcm.getFileno();

@@ -33,6 +33,8 @@
 #include <optional>
 #include <thread>
 
+#include "bus/clock.h"
+#include "bus/ids.h"
 #include "clients/cli/bus.h"
 #include "clients/cli/command.h"
 #include "clients/cli/format.h"
@@ -49,18 +51,10 @@ constexpr int64_t kReplayWindow = 4000;  // deflections published but not yet st
 constexpr double kReplayStall_s = 10.0;  // no progress this long: flexidd is not storing
 constexpr double kControlTimeout_s = 10.0;
 
-int64_t WallClockUtime() {
-  return std::chrono::duration_cast<std::chrono::microseconds>(
-             std::chrono::system_clock::now().time_since_epoch())
-      .count();
-}
-
-// Actuator ids name LCM channels: [A-Za-z0-9_-]{1,64}, as flexidd and the rig require.
+// Actuator ids name LCM channels (bus/ids.h).
 void CheckActuatorId(const std::string& id) {
-  const bool ok = !id.empty() && id.size() <= 64 && std::all_of(id.begin(), id.end(), [](char c) {
-    return std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-';
-  });
-  if (!ok) throw UsageError("--actuator must be 1 to 64 of A-Z a-z 0-9 _ - (got \"" + id + "\")");
+  if (!bus::IsValidId(id))
+    throw UsageError(std::string("--actuator must be ") + bus::kIdRule + " (got \"" + id + "\")");
 }
 
 storage::TrialState StateOf(const std::string& name) {
@@ -319,7 +313,7 @@ class Publisher {
     message.actuator_id = actuator_;
     message.action = start ? flexid::trial_control2_t::kStart : flexid::trial_control2_t::kStop;
     message.protocol = protocol;
-    message.sent_utime = auth::WallClockUtime();  // utime is the recording's message time
+    message.sent_utime = bus::WallClockUtime();  // utime is the recording's message time
     auth::Sign(key_, &message);
     if (lcm_.publish("FLEXID/TRIAL", &message) != 0) ++failed_;
   }
@@ -570,7 +564,7 @@ void RunImport(const ImportArgs& args) {
   options.actuator = args.actuator;
   options.protocol = args.protocol;
   options.start_utime = args.start_utime;
-  options.now_utime = WallClockUtime();
+  options.now_utime = bus::WallClockUtime();
   // The whole file is read and checked before anything is written or sent.
   const ImportPlan plan =
       IsLcmLog(args.file) ? PlanFromLcmLog(args.file, options) : PlanFromCsv(args.file, options);

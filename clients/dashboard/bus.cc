@@ -11,6 +11,7 @@
 #include <flexid/rpc_reply_t.hpp>
 #include <flexid/rpc_request_t.hpp>
 
+#include "bus/clock.h"
 #include "lcmtypes/wire_check.h"
 
 namespace flexid::dashboard {
@@ -20,12 +21,6 @@ namespace {
 constexpr char kPredictionChannels[] = "FLEXID/.*/PREDICTION";
 constexpr char kAlertChannel[] = "FLEXID/ALERT";
 constexpr char kRequestChannel[] = "FLEXID/RPC/REQUEST";
-
-int64_t WallClockUtime() {
-  return std::chrono::duration_cast<std::chrono::microseconds>(
-             std::chrono::system_clock::now().time_since_epoch())
-      .count();
-}
 
 }  // namespace
 
@@ -173,7 +168,7 @@ void BusAdapter::MaybeFetchModel(const std::string& actuator_id, int32_t version
 void BusAdapter::SendRequest(const std::string& method, const nlohmann::json& args,
                              PendingCall call) {
   flexid::rpc_request_t request;
-  request.utime = WallClockUtime();
+  request.utime = bus::WallClockUtime();
   request.request_id = RandomToken();
   request.client_id = options_.client_id;
   request.method = method;

@@ -6,6 +6,8 @@
 #include <cmath>
 #include <limits>
 
+#include "bus/ids.h"
+
 namespace flexid::dashboard {
 namespace {
 
@@ -127,14 +129,6 @@ std::string SeverityName(int severity) {
   }
 }
 
-bool IsValidActuatorId(const std::string& id) {
-  if (id.empty() || id.size() > 64) return false;
-  return std::all_of(id.begin(), id.end(), [](char c) {
-    return (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_' ||
-           c == '-';
-  });
-}
-
 json AlertJson(const Alert& a) {
   return {{"actuator", a.actuator_id},
           {"kind", a.kind},
@@ -214,7 +208,7 @@ LiveStore::Series* LiveStore::FindOrCreate(const std::string& actuator_id) {
 
 AddOutcome LiveStore::AddPrediction(const Prediction& in) {
   const Point& p = in.point;
-  const bool valid = IsValidActuatorId(in.actuator_id) && std::isfinite(p.voltage_V) &&
+  const bool valid = bus::IsValidId(in.actuator_id) && std::isfinite(p.voltage_V) &&
                      std::isfinite(p.measured_mm) && !std::isinf(p.predicted_mm) &&
                      !std::isinf(p.residual_mm) && in.model_version >= 0 &&
                      std::all_of(in.memberships.begin(), in.memberships.end(),
@@ -261,7 +255,7 @@ bool LiveStore::AddAlert(const Alert& alert) {
   std::lock_guard lock(mutex_);
   for (const Alert& held : alerts_)
     if (SameAlert(held, alert)) return false;
-  if (IsValidActuatorId(alert.actuator_id)) FindOrCreate(alert.actuator_id);
+  if (bus::IsValidId(alert.actuator_id)) FindOrCreate(alert.actuator_id);
   // Keep the list in message-time order (alerts from the RPC may arrive after live ones).
   auto at = std::upper_bound(alerts_.begin(), alerts_.end(), alert.utime,
                              [](int64_t utime, const Alert& a) { return utime < a.utime; });

@@ -124,9 +124,6 @@ std::optional<Alert> AlertFromJson(const nlohmann::json& json);
 // rmse_mm, samples, levels_V where present). nullopt when actuator or version is missing.
 std::optional<nlohmann::json> SummarizeModel(const nlohmann::json& rpc_result);
 
-// Actuator ids name LCM channels: [A-Za-z0-9_-]{1,64}.
-bool IsValidActuatorId(const std::string& id);
-
 class LiveStore {
  public:
   explicit LiveStore(StoreOptions options = {});

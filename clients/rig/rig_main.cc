@@ -54,6 +54,8 @@
 #include <string>
 #include <vector>
 
+#include "bus/clock.h"
+#include "bus/ids.h"
 #include "clients/cli/command.h"
 #include "clients/rig/effects.h"
 #include "clients/rig/protocol.h"
@@ -94,17 +96,6 @@ struct RigArgs {
   std::string key_file;  // signs trial control (empty: $FLEXID_KEY_FILE, else var/flexidd.key)
 };
 
-// Actuator ids name LCM channels: [A-Za-z0-9_-]{1,64}, as rpc_request_t's client_id.
-bool IsValidActuatorId(const std::string& id) {
-  if (id.empty() || id.size() > 64) return false;
-  for (const char c : id) {
-    const bool ok = (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') ||
-                    c == '_' || c == '-';
-    if (!ok) return false;
-  }
-  return true;
-}
-
 class LcmSink : public BusSink {
  public:
   LcmSink(lcm::LCM& lcm, std::string actuator_id, const flexid::auth::Key* key)
@@ -137,7 +128,7 @@ class LcmSink : public BusSink {
     message.action = action == TrialAction::kStart ? flexid::trial_control2_t::kStart
                                                    : flexid::trial_control2_t::kStop;
     message.protocol = protocol;
-    message.sent_utime = flexid::auth::WallClockUtime();  // utime is message time
+    message.sent_utime = flexid::bus::WallClockUtime();  // utime is message time
     flexid::auth::Sign(*key_, &message);
     return lcm_->publish("FLEXID/TRIAL", &message) == 0;
   }
@@ -150,17 +141,12 @@ class LcmSink : public BusSink {
   std::string deflection_channel_;
 };
 
-int64_t WallClockUtime() {
-  return std::chrono::duration_cast<std::chrono::microseconds>(
-             std::chrono::system_clock::now().time_since_epoch())
-      .count();
-}
-
 // Checks the ids (each valid, none twice); throws UsageError.
 void CheckActuatorIds(const std::vector<std::string>& ids) {
   for (size_t i = 0; i < ids.size(); ++i) {
-    if (!IsValidActuatorId(ids[i]))
-      throw UsageError("--actuator must be 1 to 64 of A-Z a-z 0-9 _ - (got \"" + ids[i] + "\")");
+    if (!bus::IsValidId(ids[i]))
+      throw UsageError(std::string("--actuator must be ") + bus::kIdRule + " (got \"" + ids[i] +
+                       "\")");
     for (size_t j = 0; j < i; ++j)
       if (ids[j] == ids[i]) throw UsageError("--actuator \"" + ids[i] + "\" given twice");
   }
@@ -264,7 +250,7 @@ int RunRigCommand(const RigArgs& args) {
   const model::TsModel model = LoadModel(args.model_path);
   RigOptions options;
   options.rate_Hz = args.rate_Hz;
-  options.start_utime = args.start_utime_given ? args.start_utime : WallClockUtime();
+  options.start_utime = args.start_utime_given ? args.start_utime : bus::WallClockUtime();
   options.noise_mm = args.noise_mm;
   options.seed = args.seed;
   std::string why;

@@ -1,7 +1,7 @@
 // Fuzz target: a bus message of any flexid type, the way flexidd, flexid and
 // flexid-dashboard take it off the bus: wire::WellFormed (lcmtypes/wire_check.h), then
 // lcm-gen's decode(); for an RPC request also the daemon's own checks of what it decoded
-// (daemon/rpc.h: IsValidClientId, ParseArguments). The daemon's other checks (finite
+// (daemon/rpc.h: ParseArguments; bus/ids.h: IsValidId). The daemon's other checks (finite
 // values, time order, channel agreement) live inside daemon/daemon.cc and are covered by
 // tests/daemon_faults_test.cc.
 //
@@ -30,6 +30,7 @@
 #include <flexid/voltage_sample_t.hpp>
 #include <vector>
 
+#include "bus/ids.h"
 #include "daemon/rpc.h"
 #include "lcmtypes/wire_check.h"
 
@@ -53,7 +54,7 @@ std::vector<uint8_t> Fingerprint() {
 
 // What the daemon does with a decoded request before it acts on it.
 void AfterDecode(const flexid::rpc_request_t& request) {
-  (void)flexid::daemon::IsValidClientId(request.client_id);
+  (void)flexid::bus::IsValidId(request.client_id);
   try {
     (void)flexid::daemon::ParseArguments(request.args_json);
   } catch (const flexid::daemon::ArgumentError&) {

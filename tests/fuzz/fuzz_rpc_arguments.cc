@@ -1,18 +1,19 @@
 // Fuzz target: the arguments of an RPC request (rpc_request_t.args_json) as flexidd reads
 // them (daemon/rpc.h): ParseArguments, then every typed accessor the methods use, with the
-// daemon's own ranges. The same bytes are also tried as a client id (IsValidClientId),
+// daemon's own ranges. The same bytes are also tried as a client id (bus::IsValidId),
 // which names the reply channel.
 //
 // Invariants (abort otherwise): only ArgumentError is thrown; a parsed document is an
 // object; StringArgument returns the member's string, at most 4096 bytes; IntegerArgument
 // returns a value in [min, max] that equals the JSON number exactly (no wrap-around of
-// unsigned values above INT64_MAX); IsValidClientId agrees with [A-Za-z0-9_-]{1,64}.
+// unsigned values above INT64_MAX); bus::IsValidId agrees with [A-Za-z0-9_-]{1,64}.
 #include <cstdint>
 #include <cstdio>
 #include <cstdlib>
 #include <limits>
 #include <string>
 
+#include "bus/ids.h"
 #include "daemon/rpc.h"
 
 namespace {
@@ -76,8 +77,8 @@ void CheckInteger(const json& args, const char* name, int64_t fallback, int64_t 
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   const std::string text(reinterpret_cast<const char*>(data), size);
-  if (flexid::daemon::IsValidClientId(text) != IsClientIdByHand(text))
-    Fail("IsValidClientId disagrees with [A-Za-z0-9_-]{1,64}", "client_id");
+  if (flexid::bus::IsValidId(text) != IsClientIdByHand(text))
+    Fail("bus::IsValidId disagrees with [A-Za-z0-9_-]{1,64}", "client_id");
   json args;
   try {
     args = flexid::daemon::ParseArguments(text);
