@@ -37,6 +37,7 @@
 
 #include "bus/clock.h"
 #include "bus/ids.h"
+#include "bus/lcm_url.h"
 #include "daemon/health.h"
 #include "daemon/rpc.h"
 #include "flexid/version.h"
@@ -71,14 +72,10 @@ constexpr int kQueueCapacity = 1 << 17;  // messages per sample subscription
 // of >1 ms prediction latencies once per commit interval (bench/daemon_load).
 constexpr int kBackgroundNice = 10;
 
-// The bus URL with a larger kernel receive buffer for this daemon's socket when none is
-// given: 16 actuators at 500 Hz (plus the daemon's own predictions, which udpm loops
-// back) overflow the default ~200 kB within ~10 ms of a stalled receive thread. The
-// kernel caps it at net.core.rmem_max (x2); LCM warns when it does.
-std::string WithReceiveBuffer(const std::string& url) {
-  if (url.rfind("udpm://", 0) != 0 || url.find("recv_buf_size") != std::string::npos) return url;
-  return url + (url.find('?') == std::string::npos ? "?" : "&") + "recv_buf_size=8388608";
-}
+// The kernel receive buffer of this daemon's socket when the URL gives none: 16 actuators
+// at 500 Hz (plus the daemon's own predictions, which udpm loops back) overflow the
+// default ~200 kB within ~10 ms of a stalled receive thread.
+constexpr int64_t kReceiveBufferBytes = 8388608;
 
 // The verifier of signed requests, with the key from the configured file (created when
 // absent). Throws auth::KeyError naming the file.
@@ -205,7 +202,7 @@ struct Daemon::Impl {
         config_path(std::move(path)),
         db(storage::Database::Open(config.database)),
         verifier(MakeVerifier(config)),
-        lcm(WithReceiveBuffer(config.lcm_url)) {
+        lcm(bus::WithReceiveBuffer(config.lcm_url, kReceiveBufferBytes)) {
     database_identity = IdentityOf(config.database);  // none in memory: nothing to watch
     if (!lcm.good()) throw std::runtime_error("cannot join the LCM bus at " + config.lcm_url);
     // Signals are taken through signalfd in the loop. They are blocked here, before any

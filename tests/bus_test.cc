@@ -6,6 +6,7 @@
 
 #include "bus/clock.h"
 #include "bus/ids.h"
+#include "bus/lcm_url.h"
 
 namespace flexid::bus {
 namespace {
@@ -22,6 +23,16 @@ TEST(BusIds, OneRuleForActuatorAndClientIds) {
       IsValidId(std::string("S\0"
                             "1",
                             3)));
+}
+
+TEST(BusLcmUrl, ReceiveBufferOnlyWhereUdpmAndNotGiven) {
+  EXPECT_EQ(WithReceiveBuffer("udpm://239.255.76.67:7667", 4096),
+            "udpm://239.255.76.67:7667?recv_buf_size=4096");
+  EXPECT_EQ(WithReceiveBuffer("udpm://239.255.76.67:7667?ttl=0", 8388608),
+            "udpm://239.255.76.67:7667?ttl=0&recv_buf_size=8388608");
+  EXPECT_EQ(WithReceiveBuffer("udpm://239.255.76.67:7667?recv_buf_size=1024", 4096),
+            "udpm://239.255.76.67:7667?recv_buf_size=1024");
+  EXPECT_EQ(WithReceiveBuffer("memq://", 4096), "memq://");
 }
 
 TEST(BusClock, WallClockIsMicrosecondsSinceTheEpoch) {

@@ -8,6 +8,7 @@
 #include <optional>
 #include <random>
 
+#include "bus/lcm_url.h"
 #include "clients/cli/command.h"
 #include "lcmtypes/wire_check.h"
 
@@ -60,18 +61,15 @@ std::string RandomToken() {
 
 // A page of trial samples is up to ~1 MB of JSON, sent as one burst of fragments: a
 // receive buffer that holds a whole reply, so that a busy machine does not drop a fragment
-// (and with it the reply) before this process reads it. As flexidd's own (daemon.cc).
-std::string WithReceiveBuffer(const std::string& url) {
-  if (url.rfind("udpm://", 0) != 0 || url.find("recv_buf_size") != std::string::npos) return url;
-  return url + (url.find('?') == std::string::npos ? "?" : "&") + "recv_buf_size=4194304";
-}
+// (and with it the reply) before this process reads it.
+constexpr int64_t kReceiveBufferBytes = 4194304;
 
 }  // namespace
 
 RpcResult CallDaemon(const std::string& method, const nlohmann::json& args,
                      std::chrono::milliseconds timeout) {
   const auth::Key* key = auth::ChangesData(method) ? &SigningKey() : nullptr;
-  lcm::LCM lcm(WithReceiveBuffer(LcmUrl()));
+  lcm::LCM lcm(bus::WithReceiveBuffer(LcmUrl(), kReceiveBufferBytes));
   if (!lcm.good()) throw OperationError("cannot join the LCM bus at " + LcmUrl());
   const std::string client_id = "cli-" + std::to_string(getpid());
   ReplyCatcher catcher{RandomToken(), std::nullopt};
