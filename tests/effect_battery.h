@@ -583,42 +583,22 @@ inline std::vector<double> SimulateBattery(const TsPlant& plant, const TsProtoco
     }
   };
 
-  std::vector<double> y;
-  y.reserve(protocol.samples);
-  double t_s = 0.0;
-  size_t next_hold = 0;  // the first hold whose delayed start is still ahead
-  for (size_t k = 0; k < protocol.samples; ++k) {
-    const double sample_s = static_cast<double>(k) * kTsPlantSamplePeriod_s;
-    while (next_hold < protocol.holds.size()) {
-      const double switch_s =
-          static_cast<double>(protocol.holds[next_hold].start_sample) * kTsPlantSamplePeriod_s +
-          plant.delay_s;
-      if (switch_s > sample_s) break;
-      advance(switch_s - t_s);
-      t_s = switch_s;
-      dynamics.SetVoltage(protocol.holds[next_hold].level_V);
-      ++next_hold;
-    }
-    advance(sample_s - t_s);
-    t_s = sample_s;
-    const double y_p = dynamics.PlantOutput(s);
-    switch (effect.kind) {
-      case BatteryEffect::kBackRelaxation:
-        y.push_back(y_p - a * (effect.relax_fast_share * s[n + 2] +
-                               (1.0 - effect.relax_fast_share) * s[n + 3]));
-        break;
-      case BatteryEffect::kHysteresis:
-        y.push_back(y_p + a * effect.preisach_scale_mm * preisach.Output());
-        break;
-      case BatteryEffect::kSensorDrift:
-        y.push_back(y_p + a * drift[k]);
-        break;
-      default:
-        y.push_back(y_p);
-        break;
-    }
-  }
-  return y;
+  return SampleWithDelayedHolds(
+      protocol, plant.delay_s, advance, [&](double level_V) { dynamics.SetVoltage(level_V); },
+      [&](size_t k) {
+        const double y_p = dynamics.PlantOutput(s);
+        switch (effect.kind) {
+          case BatteryEffect::kBackRelaxation:
+            return y_p - a * (effect.relax_fast_share * s[n + 2] +
+                              (1.0 - effect.relax_fast_share) * s[n + 3]);
+          case BatteryEffect::kHysteresis:
+            return y_p + a * effect.preisach_scale_mm * preisach.Output();
+          case BatteryEffect::kSensorDrift:
+            return y_p + a * drift[k];
+          default:
+            return y_p;
+        }
+      });
 }
 
 // ---------------------------------------------------------------------------------------

@@ -349,6 +349,36 @@ inline void Advance(const TsPlantRule& rule, double u, double span_s, RuleState*
 
 }  // namespace ts_plant_detail
 
+// Samples a plant on the protocol's grid: `advance(h_s)` integrates it over h_s, its
+// voltage is switched by `set_voltage(V)` a dead time `delay_s` after each hold starts
+// (between samples, where the switch falls), and `output(k)` reads sample k.
+template <typename Advance, typename SetVoltage, typename Output>
+std::vector<double> SampleWithDelayedHolds(const TsProtocol& protocol, double delay_s,
+                                           Advance&& advance, SetVoltage&& set_voltage,
+                                           Output&& output) {
+  std::vector<double> y;
+  y.reserve(protocol.samples);
+  double t_s = 0.0;
+  size_t next_hold = 0;  // the first hold whose delayed start is still ahead
+  for (size_t k = 0; k < protocol.samples; ++k) {
+    const double sample_s = static_cast<double>(k) * kTsPlantSamplePeriod_s;
+    while (next_hold < protocol.holds.size()) {
+      const double switch_s =
+          static_cast<double>(protocol.holds[next_hold].start_sample) * kTsPlantSamplePeriod_s +
+          delay_s;
+      if (switch_s > sample_s) break;
+      advance(switch_s - t_s);
+      t_s = switch_s;
+      set_voltage(protocol.holds[next_hold].level_V);
+      ++next_hold;
+    }
+    advance(sample_s - t_s);
+    t_s = sample_s;
+    y.push_back(output(k));
+  }
+  return y;
+}
+
 // Noise-free deflection at t_k = k Ts, k = 0 .. protocol.samples - 1, from rest.
 inline std::vector<double> SimulateTsPlant(const TsPlant& plant, const TsProtocol& protocol) {
   using ts_plant_detail::RuleState;
@@ -375,27 +405,8 @@ inline std::vector<double> SimulateTsPlant(const TsPlant& plant, const TsProtoco
     return sum_mm;
   };
 
-  std::vector<double> y;
-  y.reserve(protocol.samples);
-  double t_s = 0.0;
-  size_t next_hold = 0;  // the first hold whose delayed start is still ahead
-  for (size_t k = 0; k < protocol.samples; ++k) {
-    const double sample_s = static_cast<double>(k) * kTsPlantSamplePeriod_s;
-    while (next_hold < protocol.holds.size()) {
-      const double switch_s =
-          static_cast<double>(protocol.holds[next_hold].start_sample) * kTsPlantSamplePeriod_s +
-          plant.delay_s;
-      if (switch_s > sample_s) break;
-      advance(switch_s - t_s);
-      t_s = switch_s;
-      set_voltage(protocol.holds[next_hold].level_V);
-      ++next_hold;
-    }
-    advance(sample_s - t_s);
-    t_s = sample_s;
-    y.push_back(output());
-  }
-  return y;
+  return SampleWithDelayedHolds(protocol, plant.delay_s, advance, set_voltage,
+                                [&](size_t) { return output(); });
 }
 
 // The applied voltage column w(k Ts).
