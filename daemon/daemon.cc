@@ -143,14 +143,22 @@ struct ActuatorState {
 
 // A finished identification, handed from the worker to the loop.
 // A finished diagnosis carries its result instead (diagnosis is an object).
+// "trial 5" or "trials 4, 5, 7".
+std::string TrialWords(const std::vector<int64_t>& ids) {
+  std::string text = ids.size() == 1 ? "trial " : "trials ";
+  for (size_t i = 0; i < ids.size(); ++i) text += (i ? ", " : "") + std::to_string(ids[i]);
+  return text;
+}
+
 struct IdentifyResult {
   RpcContext request;
   std::string actuator_id;
   std::optional<storage::ModelRecord> model;  // stored and active
   std::string error;
   nlohmann::json diagnosis = nullptr;  // the diagnose method's result
-  int64_t trial_id = 0;
-  int64_t trial_start_utime = 0;
+  // The diagnosed trials and their first samples' times (empty: an identification).
+  std::vector<int64_t> trial_ids = {};
+  std::vector<int64_t> trial_start_utimes = {};
 };
 
 }  // namespace
@@ -565,19 +573,29 @@ struct Daemon::Impl {
       Alert alert;
       alert.kind = verdict;
       alert.severity = 1;
-      double first_s = 0.0, last_s = 0.0;
+      // Where it acts, from the start of the first span to the end of the last, each on the
+      // times of its trial (a span's "recording" indexes the diagnosed trials).
+      auto at_utime = [&result](const nlohmann::json& span, const char* key) {
+        const int64_t index = span.value("recording", int64_t{0});
+        const size_t trial =
+            index >= 0 && static_cast<size_t>(index) < result.trial_start_utimes.size()
+                ? static_cast<size_t>(index)
+                : 0;
+        return result.trial_start_utimes.at(trial) +
+               static_cast<int64_t>(span.value(key, 0.0) * 1e6);
+      };
+      alert.start_utime = alert.end_utime = result.trial_start_utimes.front();
       const auto where = f.find("where");
-      if (where != f.end() && where->is_array() && !where->empty()) {
-        first_s = where->front().value("t_start_s", 0.0);
-        last_s = where->back().value("t_end_s", 0.0);
+      if (where != f.end() && where->is_array() && !where->empty() && where->front().is_object() &&
+          where->back().is_object()) {
+        alert.start_utime = at_utime(where->front(), "t_start_s");
+        alert.end_utime = at_utime(where->back(), "t_end_s");
       }
-      alert.start_utime = result.trial_start_utime + static_cast<int64_t>(first_s * 1e6);
-      alert.end_utime = result.trial_start_utime + static_cast<int64_t>(last_s * 1e6);
       // Magnitude: the held-out RMSE the model leaves; threshold: what is left with the
       // effect added.
       alert.magnitude_mm = f.value("heldout_rmse_before_mm", 0.0);
       alert.threshold_mm = f.value("heldout_rmse_after_mm", 0.0);
-      alert.text = "trial " + std::to_string(result.trial_id) + ": " + f.value("explanation", "");
+      alert.text = TrialWords(result.trial_ids) + ": " + f.value("explanation", "");
       Raise(&it->second, {alert});
     }
     Reply(result.request, {flexid::rpc_reply_t::kOk, d, "", false});
@@ -716,8 +734,8 @@ struct Daemon::Impl {
       }
       if (!result.model) {
         spdlog::error("{} failed [actuator: {}, error: {}]",
-                      result.trial_id ? "diagnosis" : "identification", result.actuator_id,
-                      result.error);
+                      !result.trial_ids.empty() ? "diagnosis" : "identification",
+                      result.actuator_id, result.error);
         Reply(result.request, {flexid::rpc_reply_t::kFailed, nullptr, result.error, false});
         continue;
       }
@@ -1120,23 +1138,28 @@ model::Recording RecordingOfTrial(const std::vector<storage::Sample>& samples, i
   return rec;
 }
 
-// Diagnosis of one stored trial against the actuator's active model (or, without one or
-// when asked, against the seed's structure identified on the trial), on the worker thread
-// with its own connection.
+// Diagnosis of stored trials of one actuator (one diagnosis from all of them, oldest
+// first) against the actuator's active model (or, without one or when asked, against the
+// seed's structure identified on the trials), on the worker thread with its own connection.
 IdentifyResult RunDiagnosis(const std::string& database, const std::string& actuator_id,
-                            int64_t trial_id, bool use_model, int64_t max_samples,
-                            RpcContext request) {
-  IdentifyResult result{std::move(request), actuator_id, std::nullopt, "", nullptr, trial_id, 0};
+                            const std::vector<int64_t>& trial_ids, bool use_model,
+                            int64_t max_samples, RpcContext request) {
+  IdentifyResult result{std::move(request), actuator_id, std::nullopt, "", nullptr, trial_ids, {}};
   try {
     storage::Database db = storage::Database::Open(database);
-    if (const int64_t count = db.SampleCount(trial_id); count > max_samples)
-      throw std::runtime_error("trial " + std::to_string(trial_id) + " has " +
-                               std::to_string(count) + " samples; flexidd diagnoses at most " +
+    int64_t count = 0;
+    for (int64_t id : trial_ids) count += db.SampleCount(id);
+    if (count > max_samples)
+      throw std::runtime_error(TrialWords(trial_ids) + " have " + std::to_string(count) +
+                               " samples; flexidd diagnoses at most " +
                                std::to_string(max_samples) +
                                " (identification.max_diagnosis_samples)");
-    const std::vector<storage::Sample> samples = db.Samples(trial_id);
-    const model::Recording rec = RecordingOfTrial(samples, trial_id, 200);
-    result.trial_start_utime = samples.front().utime;
+    std::vector<model::Recording> recordings;
+    for (int64_t id : trial_ids) {
+      const std::vector<storage::Sample> samples = db.Samples(id);
+      recordings.push_back(RecordingOfTrial(samples, id, 200));
+      result.trial_start_utimes.push_back(samples.front().utime);
+    }
     std::optional<model::TsModel> trusted;
     model::DiagnoseOptions options;
     int32_t version = 0;
@@ -1150,9 +1173,12 @@ IdentifyResult RunDiagnosis(const std::string& database, const std::string& actu
         version = active->version;
       }
     }
-    result.diagnosis = model::DiagnosisToJson(model::Diagnose(rec, trusted, options));
-    result.diagnosis["trial"] = trial_id;
-    result.diagnosis["model_version"] = version;  // 0: identified on the trial
+    result.diagnosis = model::DiagnosisToJson(model::Diagnose(recordings, trusted, options));
+    if (trial_ids.size() == 1)
+      result.diagnosis["trial"] = trial_ids.front();
+    else
+      result.diagnosis["trials"] = trial_ids;
+    result.diagnosis["model_version"] = version;  // 0: identified on the trials
   } catch (const std::exception& e) {
     result.error = e.what();
     result.diagnosis = nullptr;
@@ -1360,17 +1386,12 @@ RpcOutcome Daemon::Impl::HandleRequest(const flexid::rpc_request_t& request) {
     if (method == "identify") {
       ActuatorState* state = actuator_of(true);
       std::vector<int64_t> trials;
-      if (const auto it = args.find("trials"); it != args.end()) {
-        if (!it->is_array() || it->empty() || it->size() > 100)
-          throw ArgumentError("argument \"trials\" must be a list of 1-100 trial ids");
-        for (const auto& id : *it) {
-          if (!id.is_number_integer())
-            throw ArgumentError("argument \"trials\" must hold integers");
-          const auto trial = db.FindTrial(id.get<int64_t>());
+      if (args.contains("trials")) {
+        for (int64_t id : TrialIdsArgument(args, "trials", 100)) {
+          const auto trial = db.FindTrial(id);
           if (!trial || trial->actuator_id != state->info.id)
             return {Reply::kNotFound, nullptr,
-                    "no trial " + std::to_string(id.get<int64_t>()) + " of " + state->info.id,
-                    false};
+                    "no trial " + std::to_string(id) + " of " + state->info.id, false};
           trials.push_back(trial->id);
         }
       } else {
@@ -1414,20 +1435,30 @@ RpcOutcome Daemon::Impl::HandleRequest(const flexid::rpc_request_t& request) {
     }
     if (method == "diagnose") {
       ActuatorState* state = actuator_of(true);
-      int64_t trial_id = 0;
-      if (args.contains("trial")) {
-        trial_id = RequiredIntegerArgument(args, "trial", 1, std::numeric_limits<int64_t>::max());
+      // "trial": one; "trials": several, in the order given; "recent": the latest K
+      // finished ones, oldest first; none: the latest finished one.
+      if (args.contains("trial") + args.contains("trials") + args.contains("recent") > 1)
+        throw ArgumentError("give one of \"trial\", \"trials\" and \"recent\"");
+      std::vector<int64_t> trial_ids;
+      if (args.contains("trial"))
+        trial_ids = {
+            RequiredIntegerArgument(args, "trial", 1, std::numeric_limits<int64_t>::max())};
+      else if (args.contains("trials"))
+        trial_ids = TrialIdsArgument(args, "trials", model::kMaxDiagnosedRecordings);
+      for (int64_t trial_id : trial_ids) {
         const auto trial = db.FindTrial(trial_id);
         if (!trial || trial->actuator_id != state->info.id)
           return {Reply::kNotFound, nullptr,
                   "no trial " + std::to_string(trial_id) + " of " + state->info.id, false};
-      } else {
+      }
+      if (trial_ids.empty()) {
+        const int64_t recent =
+            IntegerArgument(args, "recent", 1, 1, model::kMaxDiagnosedRecordings);
         for (const storage::Trial& t : db.Trials(state->info.id, 1000))
-          if (t.state != storage::TrialState::kRecording && t.samples >= 200) {
-            trial_id = t.id;
-            break;
-          }
-        if (trial_id == 0)
+          if (t.state != storage::TrialState::kRecording && t.samples >= 200 &&
+              static_cast<int64_t>(trial_ids.size()) < recent)
+            trial_ids.insert(trial_ids.begin(), t.id);
+        if (trial_ids.empty())
           return {Reply::kNotFound, nullptr, state->info.id + " has no finished trial to diagnose",
                   false};
       }
@@ -1440,15 +1471,21 @@ RpcOutcome Daemon::Impl::HandleRequest(const flexid::rpc_request_t& request) {
       const std::string database = config.database, id = state->info.id;
       const RpcContext context{request.request_id, request.client_id};
       const int64_t max_samples = config.identification.max_diagnosis_samples;
-      if (!Submit([database, id, trial_id, use_model, max_samples, context, samples] {
+      if (!Submit([database, id, trial_ids, use_model, max_samples, context, samples] {
             if (!samples->Flush())
-              return IdentifyResult{context, id, std::nullopt,
-                                    "cannot commit samples: " + samples->last_error()};
-            return RunDiagnosis(database, id, trial_id, use_model, max_samples, context);
+              return IdentifyResult{context,
+                                    id,
+                                    std::nullopt,
+                                    "cannot commit samples: " + samples->last_error(),
+                                    nullptr,
+                                    trial_ids,
+                                    {}};
+            return RunDiagnosis(database, id, trial_ids, use_model, max_samples, context);
           }))
         return {Reply::kBusy, nullptr,
                 "an identification or diagnosis is already running; try again when it ends", false};
-      spdlog::info("diagnosis started [actuator: {}, trial: {}]", id, trial_id);
+      spdlog::info("diagnosis started [actuator: {}, trials: {}]", id,
+                   nlohmann::json(trial_ids).dump());
       return {Reply::kOk, nullptr, "", true};
     }
     return {Reply::kBadRequest, nullptr, "unknown method \"" + method + "\"", false};

@@ -1,5 +1,6 @@
 #include "daemon/rpc.h"
 
+#include <algorithm>
 #include <limits>
 #include <regex>
 
@@ -48,6 +49,23 @@ int64_t RequiredIntegerArgument(const nlohmann::json& args, const char* name, in
                                 int64_t max) {
   if (!args.contains(name)) throw ArgumentError(std::string("missing argument \"") + name + "\"");
   return IntegerArgument(args, name, min, min, max);
+}
+
+std::vector<int64_t> TrialIdsArgument(const nlohmann::json& args, const char* name,
+                                      size_t max_count) {
+  const std::string what = std::string("argument \"") + name + "\" must be a list of 1-" +
+                           std::to_string(max_count) + " distinct trial ids";
+  const auto it = args.find(name);
+  if (it == args.end() || !it->is_array() || it->empty() || it->size() > max_count)
+    throw ArgumentError(what);
+  std::vector<int64_t> ids;
+  for (const auto& id : *it) {
+    if (!id.is_number_integer() || id.get<int64_t>() < 1) throw ArgumentError(what);
+    if (std::find(ids.begin(), ids.end(), id.get<int64_t>()) != ids.end())
+      throw ArgumentError(what + " (" + std::to_string(id.get<int64_t>()) + " is given twice)");
+    ids.push_back(id.get<int64_t>());
+  }
+  return ids;
 }
 
 }  // namespace flexid::daemon

@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <nlohmann/json.hpp>
 #include <string>
+#include <vector>
 
 #include "lcmtypes/message_auth.h"
 
@@ -41,5 +42,8 @@ int64_t IntegerArgument(const nlohmann::json& args, const char* name, int64_t fa
                         int64_t max);
 int64_t RequiredIntegerArgument(const nlohmann::json& args, const char* name, int64_t min,
                                 int64_t max);
+// A list of 1 to max_count distinct trial ids (integers >= 1).
+std::vector<int64_t> TrialIdsArgument(const nlohmann::json& args, const char* name,
+                                      size_t max_count);
 
 }  // namespace flexid::daemon

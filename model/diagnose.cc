@@ -264,7 +264,21 @@ double RmsOver(std::span<const double> r, const std::vector<size_t>& index) {
 // -----------------------------------------------------------------------------------------
 
 struct Data {
+  // The recordings laid end to end (JoinRecordings): recording j is samples
+  // [starts[j], starts[j + 1]), its times shifted by shift_s[j]. Empty starts: one.
   const Recording* rec = nullptr;
+  std::vector<size_t> starts;
+  std::vector<double> shift_s;
+  size_t Recordings() const { return starts.empty() ? 1 : starts.size() - 1; }
+  size_t Begin(size_t j) const { return starts.empty() ? 0 : starts[j]; }
+  size_t End(size_t j) const { return starts.empty() ? rec->t_s.size() : starts[j + 1]; }
+  // The model driven by u from rest in every recording (each starts at rest: the state
+  // never carries from one recording into the next).
+  std::vector<double> SimulateFromRest(const TsModel& model, const std::vector<double>& u) const;
+  // An output effect: a relaxation or a hysteresis state starts afresh in each recording
+  // (each starts at rest); a sensor drift runs through them in order (one sensor over a
+  // session: its warm-up happens once, and the gaps between recordings do not count).
+  void ApplyOutput(const Effect& e, std::vector<double>* y_mm) const;
   // The voltage column is sampled: where the voltage really stepped between two samples is
   // unknown, and a step's timing error leaves an error that the slow modes carry for
   // minutes. Every fit and training test therefore works after projecting out the
@@ -289,6 +303,33 @@ struct Data {
   double duration_s = 0.0;
   double dt_s = 0.0;  // median sample period
 };
+
+std::vector<double> Data::SimulateFromRest(const TsModel& model,
+                                           const std::vector<double>& u) const {
+  if (Recordings() == 1) return Simulate(model, rec->t_s, u, Simulation());
+  std::vector<double> y;
+  y.reserve(u.size());
+  const std::span<const double> t(rec->t_s), v(u);
+  for (size_t j = 0; j < Recordings(); ++j) {
+    const std::vector<double> part = Simulate(model, t.subspan(Begin(j), End(j) - Begin(j)),
+                                              v.subspan(Begin(j), End(j) - Begin(j)), Simulation());
+    y.insert(y.end(), part.begin(), part.end());
+  }
+  return y;
+}
+
+void Data::ApplyOutput(const Effect& e, std::vector<double>* y_mm) const {
+  if (Recordings() == 1 || e.kind == EffectKind::kSensorDrift)
+    return ApplyOutputEffect(e, rec->t_s, y_mm);
+  const std::span<const double> t(rec->t_s);
+  for (size_t j = 0; j < Recordings(); ++j) {
+    const auto first = y_mm->begin() + static_cast<long>(Begin(j));
+    const auto last = y_mm->begin() + static_cast<long>(End(j));
+    std::vector<double> part(first, last);
+    ApplyOutputEffect(e, t.subspan(Begin(j), End(j) - Begin(j)), &part);
+    std::copy(part.begin(), part.end(), first);
+  }
+}
 
 std::vector<double> NuisanceFreeResidual(const Data& data, std::span<const double> predicted) {
   std::vector<double> r = Residual(data.rec->deflection_mm, predicted);
@@ -320,18 +361,20 @@ std::vector<double> Predict(const Data& data, const Augmented& a,
   const Recording& rec = *data.rec;
   bool any_input = false;
   for (const Effect& e : a.effects) any_input |= Info(e.kind).input_side;
-  std::vector<double> u = rec.voltage_V;  // the voltage the gel responds to
+  // The voltage the gel responds to. Input effects act on the recordings in order, as one
+  // actuator lived them (a degradation's charge accumulates from one to the next).
+  std::vector<double> u = rec.voltage_V;
   for (const auto* list : {&data.given, &a.effects})
     for (const Effect& e : *list)
       if (Info(e.kind).input_side) ApplyInputEffect(e, rec.t_s, &u);
   auto output_effect = [&](const Effect& e, std::vector<double>* y) {
-    if (!Info(e.kind).input_side) ApplyOutputEffect(e, rec.t_s, y);
+    if (!Info(e.kind).input_side) data.ApplyOutput(e, y);
   };
   std::vector<double> y;
   if (!any_input && cache && !a.refit) {
     y = *cache;  // the baseline with the given effects
   } else {
-    y = Simulate(a.Baseline(), rec.t_s, u, data.Simulation());
+    y = data.SimulateFromRest(a.Baseline(), u);
     for (const Effect& e : data.given) output_effect(e, &y);
   }
   for (const Effect& e : a.effects) output_effect(e, &y);
@@ -377,6 +420,65 @@ struct FitResult {
   std::vector<double> prediction;
   double train_sse = kInf;
 };
+
+// The covariance of parameters estimated by least squares with Jacobian j (m x q) and
+// residual variance sigma2, as a pseudo-inverse: *covariance (q x q, infinite for a
+// parameter the residuals do not move), *null_space (q x c: the directions the data do not
+// determine). Returns each parameter's 95 % half-width (infinite when not determined alone).
+std::vector<double> CovarianceOf(const Eigen::MatrixXd& j, double sigma2,
+                                 Eigen::MatrixXd* covariance_out, Eigen::MatrixXd* null_space_out) {
+  const long q = j.cols();
+  std::vector<double> half_width(static_cast<size_t>(q), kInf);
+  covariance_out->resize(0, 0);
+  null_space_out->resize(0, 0);
+  // A parameter the residuals do not move at all (a saturation's onset anywhere between
+  // two visited levels) is held: the others' intervals are then given it, and its own
+  // is "not determined".
+  const Eigen::MatrixXd jtj = j.transpose() * j;
+  if (q == 0) return half_width;
+  const double largest = jtj.diagonal().cwiseAbs().maxCoeff();
+  std::vector<long> moved;
+  for (long i = 0; i < q; ++i)
+    if (jtj(i, i) > 1e-14 * largest) moved.push_back(i);
+  const long p = static_cast<long>(moved.size());
+  if (p == 0) return half_width;
+  Eigen::MatrixXd sub(p, p);
+  for (long a = 0; a < p; ++a)
+    for (long b = 0; b < p; ++b) sub(a, b) = jtj(moved[a], moved[b]);
+  // Parameters that trade off exactly (a saturation's onset and slope seen at one level
+  // above the onset) leave a combination determined: the pseudo-inverse gives its
+  // variance (SizeDetermined checks that its size is such a combination); a parameter
+  // not determined alone gets no interval.
+  const Eigen::VectorXd scale = sub.diagonal().cwiseSqrt().cwiseInverse();
+  Eigen::JacobiSVD<Eigen::MatrixXd> svd(scale.asDiagonal() * sub * scale.asDiagonal(),
+                                        Eigen::ComputeFullU | Eigen::ComputeFullV);
+  const Eigen::VectorXd sv = svd.singularValues();
+  Eigen::VectorXd inverse = Eigen::VectorXd::Zero(p);
+  Eigen::MatrixXd null_space(p, 0);
+  for (long i = 0; i < p; ++i) {
+    if (sv(i) > 1e-12 * sv(0)) {
+      inverse(i) = 1.0 / sv(i);
+    } else {
+      null_space.conservativeResize(Eigen::NoChange, null_space.cols() + 1);
+      null_space.col(null_space.cols() - 1) = svd.matrixV().col(i);
+    }
+  }
+  const Eigen::MatrixXd covariance = sigma2 * scale.asDiagonal() * svd.matrixV() *
+                                     inverse.asDiagonal() * svd.matrixU().transpose() *
+                                     scale.asDiagonal();
+  *covariance_out = Eigen::MatrixXd::Constant(q, q, kInf);
+  *null_space_out = Eigen::MatrixXd::Zero(q, null_space.cols());
+  for (long a = 0; a < p; ++a) {
+    // Alone, a parameter is determined unless it has a share in an undetermined
+    // direction (directions in scaled coordinates).
+    const bool alone = null_space.cols() == 0 || null_space.row(a).norm() < 1e-6;
+    if (alone)
+      half_width[static_cast<size_t>(moved[a])] = 1.96 * std::sqrt(std::max(0.0, covariance(a, a)));
+    for (long b = 0; b < p; ++b) (*covariance_out)(moved[a], moved[b]) = covariance(a, b);
+    null_space_out->row(moved[a]) = null_space.row(a) * scale(a);
+  }
+  return half_width;
+}
 
 Augmented Assemble(const FitProblem& p, const double* theta) {
   Augmented a = p.fixed;
@@ -438,59 +540,12 @@ FitResult FitParameters(const Data& data, const FitProblem& problem,
   // variance inflated by n / n_eff for correlated residuals.
   auto half_widths = [&](const Eigen::MatrixXd& j, const std::vector<double>& residuals, double sse,
                          std::vector<double>* half_width) {
-    best.covariance.resize(0, 0);
     std::vector<size_t> all(residuals.size());
     std::iota(all.begin(), all.end(), size_t{0});
     const double n = static_cast<double>(residuals.size());
     const double n_eff = std::max(EffectiveSamples(residuals, all), 1.0);
     const double sigma2 = sse / std::max(1.0, n - static_cast<double>(q)) * n / n_eff;
-    half_width->assign(q, kInf);
-    // A parameter the residuals do not move at all (a saturation's onset anywhere between
-    // two visited levels) is held: the others' intervals are then given it, and its own
-    // is "not determined".
-    const Eigen::MatrixXd jtj = j.transpose() * j;
-    const double largest = jtj.diagonal().cwiseAbs().maxCoeff();
-    std::vector<long> moved;
-    for (long i = 0; i < static_cast<long>(q); ++i)
-      if (jtj(i, i) > 1e-14 * largest) moved.push_back(i);
-    const long p = static_cast<long>(moved.size());
-    Eigen::MatrixXd sub(p, p);
-    for (long a = 0; a < p; ++a)
-      for (long b = 0; b < p; ++b) sub(a, b) = jtj(moved[a], moved[b]);
-    if (p == 0) return;
-    // Parameters that trade off exactly (a saturation's onset and slope seen at one level
-    // above the onset) leave a combination determined: the pseudo-inverse gives its
-    // variance (SizeDetermined checks that its size is such a combination); a parameter
-    // not determined alone gets no interval.
-    const Eigen::VectorXd scale = sub.diagonal().cwiseSqrt().cwiseInverse();
-    Eigen::JacobiSVD<Eigen::MatrixXd> svd(scale.asDiagonal() * sub * scale.asDiagonal(),
-                                          Eigen::ComputeFullU | Eigen::ComputeFullV);
-    const Eigen::VectorXd sv = svd.singularValues();
-    Eigen::VectorXd inverse = Eigen::VectorXd::Zero(p);
-    Eigen::MatrixXd null_space(p, 0);
-    for (long i = 0; i < p; ++i) {
-      if (sv(i) > 1e-12 * sv(0)) {
-        inverse(i) = 1.0 / sv(i);
-      } else {
-        null_space.conservativeResize(Eigen::NoChange, null_space.cols() + 1);
-        null_space.col(null_space.cols() - 1) = svd.matrixV().col(i);
-      }
-    }
-    const Eigen::MatrixXd covariance = sigma2 * scale.asDiagonal() * svd.matrixV() *
-                                       inverse.asDiagonal() * svd.matrixU().transpose() *
-                                       scale.asDiagonal();
-    best.covariance = Eigen::MatrixXd::Constant(static_cast<long>(q), static_cast<long>(q), kInf);
-    best.null_space = Eigen::MatrixXd::Zero(static_cast<long>(q), null_space.cols());
-    for (long a = 0; a < p; ++a) {
-      // Alone, a parameter is determined unless it has a share in an undetermined
-      // direction (directions in scaled coordinates).
-      const bool alone = null_space.cols() == 0 || null_space.row(a).norm() < 1e-6;
-      if (alone)
-        (*half_width)[static_cast<size_t>(moved[a])] =
-            1.96 * std::sqrt(std::max(0.0, covariance(a, a)));
-      for (long b = 0; b < p; ++b) best.covariance(moved[a], moved[b]) = covariance(a, b);
-      best.null_space.row(moved[a]) = null_space.row(a) * scale(a);
-    }
+    *half_width = CovarianceOf(j, sigma2, &best.covariance, &best.null_space);
   };
   // A refitted baseline adds a dozen or more coefficients, each difference a simulation of
   // the whole recording: the secant L-M (secant_lm.h, two simulations an iteration, as the
@@ -964,6 +1019,7 @@ HoldSummary Holds(const Data& data) {
 std::string Explain(const Effect& e, const Data& data, std::span<const double> delta,
                     double before_mm, double after_mm, const std::string& model_words) {
   const HoldSummary holds = Holds(data);
+  const std::string recordings = data.Recordings() > 1 ? "the recordings" : "the recording";
   double peak = 0.0;
   for (double d : delta) peak = std::max(peak, std::abs(d));
   std::string text;
@@ -983,10 +1039,8 @@ std::string Explain(const Effect& e, const Data& data, std::span<const double> d
              Format(" beyond the model with a %.0f s time constant", e.params[1]) + ": creep";
       break;
     case EffectKind::kCycleDegradation:
-      text = Format(
-                 "the response shrinks as charge is transferred: by the end of the recording the "
-                 "gain is %.1f %% lower than at its start",
-                 100.0 * e.params[0]) +
+      text = "the response shrinks as charge is transferred: by the end of " + recordings +
+             Format(" the gain is %.1f %% lower than at the start", 100.0 * e.params[0]) +
              " (up to " + Mm(peak) + " at the last cycles): cycle degradation";
       break;
     case EffectKind::kHysteresis:
@@ -1006,9 +1060,12 @@ std::string Explain(const Effect& e, const Data& data, std::span<const double> d
              Mm(peak) + " less than " + model_words + "): a dead zone";
       break;
     case EffectKind::kSensorDrift:
-      text = "the measured baseline drifts by " + Mm(e.params[0]) + " over the recording and " +
-             Mm(e.params[1]) + Format(" in a warm-up with a %.0f s time constant", e.params[2]) +
-             ", with no relation to the voltage, also at rest: sensor drift";
+      text =
+          "the measured baseline drifts by " + Mm(e.params[0]) +
+          (data.Recordings() > 1 ? Format(" in %.0f s", data.duration_s) : " over the recording") +
+          " and " + Mm(e.params[1]) +
+          Format(" in a warm-up with a %.0f s time constant", e.params[2]) +
+          ", with no relation to the voltage, also at rest: sensor drift";
       break;
     case EffectKind::kPolarityAsymmetry:
       text = Format("negative voltage moves the beam %.3g times as much as ", e.params[0]) +
@@ -1059,9 +1116,20 @@ GlobalEstimate IdentifyBaseline(const Recording& rec, const Data& data, Diagnosi
   identify.raise_order_of = higher_than;
   for (const TimeSpan& s : result->heldout)
     identify.excluded_spans_s.emplace_back(s.t_start_s, s.t_end_s + 0.5 * data.dt_s);
+  std::vector<Recording> parts;
+  for (size_t j = 0; j < data.Recordings(); ++j) {
+    const auto first = static_cast<long>(data.Begin(j)), last = static_cast<long>(data.End(j));
+    Recording part;
+    part.source = training.source;
+    part.t_s.assign(training.t_s.begin() + first, training.t_s.begin() + last);
+    part.voltage_V.assign(training.voltage_V.begin() + first, training.voltage_V.begin() + last);
+    part.deflection_mm.assign(training.deflection_mm.begin() + first,
+                              training.deflection_mm.begin() + last);
+    parts.push_back(std::move(part));
+  }
   GlobalEstimate estimate;
   try {
-    estimate = IdentifyGlobalTs({training}, identify);
+    estimate = IdentifyGlobalTs(parts, identify);
   } catch (const InputError& e) {
     throw InputError(std::string("no baseline could be identified: ") + e.what());
   }
@@ -1174,16 +1242,74 @@ std::vector<double> SimulateAugmented(const TsModel& baseline, const Recording& 
 // Diagnose
 // -----------------------------------------------------------------------------------------
 
-Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_model,
+namespace {
+
+// The recordings laid end to end, in the order given, as one: recording j > 0 starts one
+// sample period (its predecessor's last) after its predecessor ends. *starts receives the
+// first sample of each, then the total; *shift_s what was added to each one's times.
+Recording JoinRecordings(const std::vector<Recording>& recordings, std::vector<size_t>* starts,
+                         std::vector<double>* shift_s) {
+  if (recordings.empty()) throw InputError("diagnosis needs at least one recording");
+  if (recordings.size() > static_cast<size_t>(kMaxDiagnosedRecordings))
+    throw InputError(std::to_string(recordings.size()) +
+                     " recordings; one diagnosis takes at most " +
+                     std::to_string(kMaxDiagnosedRecordings));
+  Recording joined;
+  for (const Recording& r : recordings) {
+    const size_t n = r.t_s.size();
+    if (r.deflection_mm.size() != n || r.voltage_V.size() != n)
+      throw InputError(r.source + ": diagnosis needs time, voltage and deflection columns");
+    if (n < 2) throw InputError(r.source + ": " + std::to_string(n) + " samples; need at least 2");
+    double shift = 0.0;
+    if (!joined.t_s.empty()) {
+      const size_t m = joined.t_s.size();
+      const double gap_s = m >= 2 ? joined.t_s[m - 1] - joined.t_s[m - 2] : r.t_s[1] - r.t_s[0];
+      shift = joined.t_s.back() + gap_s - r.t_s.front();
+      joined.source += " + ";
+    }
+    starts->push_back(joined.t_s.size());
+    shift_s->push_back(shift);
+    joined.source += r.source;
+    for (double t : r.t_s) joined.t_s.push_back(t + shift);
+    joined.voltage_V.insert(joined.voltage_V.end(), r.voltage_V.begin(), r.voltage_V.end());
+    joined.deflection_mm.insert(joined.deflection_mm.end(), r.deflection_mm.begin(),
+                                r.deflection_mm.end());
+  }
+  starts->push_back(joined.t_s.size());
+  return joined;
+}
+
+// Spans on the joined time axis as spans of the recordings, on their own times (a span
+// across the end of one recording becomes one in each).
+std::vector<TimeSpan> OnRecordings(const Data& data, const std::vector<TimeSpan>& joined) {
+  std::vector<TimeSpan> out;
+  for (const TimeSpan& s : joined)
+    for (size_t j = 0; j < data.Recordings(); ++j) {
+      const double first = std::max(s.t_start_s, data.rec->t_s[data.Begin(j)]);
+      const double last = std::min(s.t_end_s, data.rec->t_s[data.End(j) - 1]);
+      if (first <= last)
+        out.push_back({first - data.shift_s[j], last - data.shift_s[j], static_cast<int>(j)});
+    }
+  return out;
+}
+
+}  // namespace
+
+Diagnosis Diagnose(const Recording& recording, const std::optional<TsModel>& trusted_model,
                    const DiagnoseOptions& options) {
+  return Diagnose(std::vector<Recording>{recording}, trusted_model, options);
+}
+
+Diagnosis Diagnose(const std::vector<Recording>& recordings,
+                   const std::optional<TsModel>& trusted_model, const DiagnoseOptions& options) {
   if (!(options.heldout_blocks >= 1 && options.heldout_blocks <= 20 &&
         options.heldout_fraction > 0 && options.heldout_fraction <= 0.5 &&
         options.false_alarm_rate > 0 && options.false_alarm_rate < 1 &&
         options.min_effect_to_noise >= 0 && options.max_effects >= 1))
     throw std::invalid_argument("diagnosis options out of range");
+  Data data;
+  const Recording rec = JoinRecordings(recordings, &data.starts, &data.shift_s);
   const size_t n = rec.t_s.size();
-  if (rec.deflection_mm.size() != n || rec.voltage_V.size() != n)
-    throw InputError(rec.source + ": diagnosis needs time, voltage and deflection columns");
   if (n < 200)
     throw InputError(rec.source + ": " + std::to_string(n) +
                      " samples; diagnosis needs at least 200");
@@ -1192,8 +1318,8 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
 
   Diagnosis result;
   result.trusted_model = trusted_model.has_value();
+  for (const Recording& r : recordings) result.recordings.push_back(r.source);
   bool relaxation_asked = trusted_model.has_value();
-  Data data;
   data.rec = &rec;
   data.duration_s = rec.t_s.back() - rec.t_s.front();
   {
@@ -1335,7 +1461,9 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
     const double step_V = std::max(5.0 * data.levels.tolerance_V, 0.05 * data.max_abs_V);
     std::vector<size_t> edges;
     for (size_t k = 1; k < n; ++k)
-      if (std::abs(rec.voltage_V[k] - rec.voltage_V[k - 1]) > step_V) edges.push_back(k);
+      if (std::abs(rec.voltage_V[k] - rec.voltage_V[k - 1]) > step_V &&
+          std::find(data.starts.begin(), data.starts.end(), k) == data.starts.end())
+        edges.push_back(k);
     // An identified baseline has none: it is refitted with every effect on these samples,
     // its dead time placed within a sample, and regressors with free coefficients would
     // let the step timing absorb slow trends in the training samples that the held-out
@@ -1347,7 +1475,7 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
       for (size_t e = 0; e < edges.size(); ++e) {
         std::vector<double> u = rec.voltage_V;
         u[edges[e] - 1] += 0.5 * (u[edges[e]] - u[edges[e] - 1]);
-        const std::vector<double> y = Simulate(baseline, rec.t_s, u, data.Simulation());
+        const std::vector<double> y = data.SimulateFromRest(baseline, u);
         for (size_t k = 0; k < n; ++k)
           g(static_cast<long>(k), static_cast<long>(e)) = y[k] - result.baseline_mm[k];
       }
@@ -1641,6 +1769,11 @@ Diagnosis Diagnose(const Recording& rec, const std::optional<TsModel>& trusted_m
   result.verdict = result.findings.empty() ? "none" : result.findings.front().effect;
   result.augmented_mm = result.findings.empty() ? result.baseline_mm : current.prediction;
   result.augmented_baseline_model = current.model.refit ? *current.model.refit : baseline;
+  if (data.Recordings() > 1) {
+    result.heldout = OnRecordings(data, result.heldout);
+    for (Finding& f : result.findings) f.where = OnRecordings(data, f.where);
+    for (Misfit& m : result.unexplained) m.where = OnRecordings(data, m.where);
+  }
   return result;
 }
 
@@ -1648,10 +1781,13 @@ namespace {
 
 nlohmann::json Finite(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(); }
 
-nlohmann::json SpansToJson(const std::vector<TimeSpan>& spans) {
+// `several`: the diagnosis covered several recordings; each span then says which.
+nlohmann::json SpansToJson(const std::vector<TimeSpan>& spans, bool several) {
   nlohmann::json out = nlohmann::json::array();
-  for (const TimeSpan& s : spans)
+  for (const TimeSpan& s : spans) {
     out.push_back({{"t_start_s", s.t_start_s}, {"t_end_s", s.t_end_s}});
+    if (several) out.back()["recording"] = s.recording;
+  }
   return out;
 }
 
@@ -1669,7 +1805,9 @@ void ParamsToJson(const std::vector<ParameterEstimate>& params, nlohmann::json* 
 
 nlohmann::json DiagnosisToJson(const Diagnosis& d) {
   nlohmann::json out;
+  const bool several = d.recordings.size() > 1;
   out["verdict"] = d.verdict;
+  if (several) out["recordings"] = d.recordings;
   out["baseline"] = {{"fit_percent", Finite(d.baseline_fit_percent)},
                      {"rmse_mm", Finite(d.baseline_rmse_mm)},
                      {"heldout_rmse_mm", Finite(d.baseline_heldout_rmse_mm)},
@@ -1678,7 +1816,7 @@ nlohmann::json DiagnosisToJson(const Diagnosis& d) {
   for (const Finding& f : d.findings) {
     nlohmann::json j = {{"effect", f.effect},
                         {"explanation", f.explanation},
-                        {"where", SpansToJson(f.where)},
+                        {"where", SpansToJson(f.where, several)},
                         {"heldout_rmse_before_mm", Finite(f.heldout_rmse_before_mm)},
                         {"heldout_rmse_after_mm", Finite(f.heldout_rmse_after_mm)}};
     ParamsToJson(f.params, &j);
@@ -1686,7 +1824,7 @@ nlohmann::json DiagnosisToJson(const Diagnosis& d) {
   }
   out["findings"] = std::move(findings);
   out["noise_std_mm"] = d.noise_std_mm;
-  out["heldout"] = SpansToJson(d.heldout);
+  out["heldout"] = SpansToJson(d.heldout, several);
   nlohmann::json candidates = nlohmann::json::array();
   for (const CandidateReport& c : d.candidates) {
     nlohmann::json j = {{"effect", c.name},
@@ -1726,7 +1864,7 @@ nlohmann::json DiagnosisToJson(const Diagnosis& d) {
   for (const Misfit& m : d.unexplained)
     unexplained.push_back({{"resembles", m.resembles},
                            {"rms_mm", Finite(m.rms_mm)},
-                           {"where", SpansToJson(m.where)},
+                           {"where", SpansToJson(m.where, several)},
                            {"explanation", m.explanation}});
   out["unexplained"] = std::move(unexplained);
   out["notes"] = d.notes;

@@ -136,6 +136,7 @@ std::vector<Effect> EffectsOf(const ModelDocument& document, const std::string& 
 struct TimeSpan {
   double t_start_s = 0.0;
   double t_end_s = 0.0;
+  int recording = 0;  // which of the diagnosed recordings, on its own times (0 with one)
 };
 
 // Residual statistics of one group of samples (all samples, held-out included).
@@ -209,7 +210,8 @@ struct DiagnoseOptions {
 };
 
 struct Diagnosis {
-  std::string verdict;  // effect name, or "none"
+  std::string verdict;                  // effect name, or "none"
+  std::vector<std::string> recordings;  // the diagnosed recordings' sources, in order
   bool trusted_model = false;
   TsModel baseline_model;
   // The baseline that goes with the findings' effects: baseline_model, or, without a
@@ -233,6 +235,20 @@ struct Diagnosis {
 // Throws InputError for an unusable recording (too short, no deflection, constant
 // voltage) and std::invalid_argument for invalid options or model.
 Diagnosis Diagnose(const Recording& recording, const std::optional<TsModel>& trusted_model,
+                   const DiagnoseOptions& options = {});
+// Several recordings of one actuator (trials of different protocols, levels and holds):
+// one diagnosis from the evidence of all of them. They are laid end to end in the order
+// given, each simulated from rest (no state carries over), and the held-out blocks are
+// spread over the whole. A relaxation and a hysteresis state start afresh in each
+// recording; effects that belong to the actuator's or the sensor's history run through the
+// recordings in order, the gaps between them not counted (a degradation's charge
+// accumulates from one to the next; a sensor drift's warm-up happens once). An identified baseline is identified on all of them (they must share
+// a sample period). Spans (held-out, where) say which recording they are in
+// (TimeSpan::recording), on its own times; baseline_mm and augmented_mm run through the
+// recordings in order. Errors name the recording.
+constexpr int kMaxDiagnosedRecordings = 16;  // in one diagnosis (InputError beyond)
+Diagnosis Diagnose(const std::vector<Recording>& recordings,
+                   const std::optional<TsModel>& trusted_model,
                    const DiagnoseOptions& options = {});
 
 // The diagnosis result of DESIGN.md ("Diagnosis result"): verdict, baseline

@@ -219,6 +219,26 @@ TEST_F(CliModels, SimulateAndDiagnoseStoredTrials) {
   EXPECT_EQ(here["trial"], trial_2V_);
   EXPECT_EQ(here["model_version"], 1);
   EXPECT_TRUE(std::filesystem::exists(report));
+
+  // Both trials in one diagnosis: in flexidd (its latest two, oldest first) and here.
+  r = Online("diagnose --actuator S1 --recent 2 --json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const json recent = ParseJson(r);
+  EXPECT_EQ(recent["trials"], json::array({trial_2V_, trial_8V_}));
+  EXPECT_EQ(recent["recordings"].size(), 2u);
+  EXPECT_TRUE(recent["verdict"].is_string());
+  offline = Offline("diagnose --trial " + t2 + " --trial " + std::to_string(trial_8V_) +
+                    " --no-model --json");
+  ASSERT_EQ(offline.exit_code, 0) << offline.err;
+  const json both = ParseJson(offline);
+  EXPECT_EQ(both["trials"], json::array({trial_2V_, trial_8V_}));
+  EXPECT_EQ(both["model_version"], 0);
+  r = Online("diagnose --actuator S1 --trial " + t2 + " --trial " + t2);
+  EXPECT_EQ(r.exit_code, 2) << r.out;
+  EXPECT_NE(r.err.find("given twice"), std::string::npos) << r.err;
+  r = Online("rpc diagnose '{\"actuator\": \"S1\", \"trial\": " + t2 + ", \"recent\": 2}'");
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.err.find("one of"), std::string::npos) << r.err;
 }
 
 TEST_F(CliModels, BadInputExitsTwoWithOneLine) {

@@ -299,6 +299,42 @@ TEST_F(Cli, DiagnoseGivesTheContractJsonReportAndAugmentedModel) {
   EXPECT_NE(r.err.find("missing.csv"), std::string::npos) << r.err;
 }
 
+// Several recordings of one actuator: one diagnosis, spans that name their recording, one
+// report with a chart set per recording; a bad one among them is named.
+TEST_F(Cli, DiagnoseSeveralRecordingsTogether) {
+  const std::string a = kExamples + "/concealed/rec-06.csv";
+  const std::string b = kExamples + "/concealed/rec-01.csv";
+  const auto report = scratch_.path() / "both.html";
+  auto r = Run("diagnose " + a + " " + b + " --model " + kExamples +
+               "/seed-8V.json --json --report " + report.string());
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  ASSERT_EQ(j["recordings"].size(), 2u);
+  EXPECT_EQ(j["recordings"][0], a);
+  bool in[2] = {false, false};
+  for (const auto& span : j["heldout"]) {
+    ASSERT_TRUE(span["recording"].is_number_integer()) << span;
+    const int index = span["recording"].get<int>();
+    ASSERT_TRUE(index == 0 || index == 1) << span;
+    in[index] = true;
+  }
+  EXPECT_TRUE(in[0] && in[1]);
+  std::ifstream file(report);
+  const std::string html((std::istreambuf_iterator<char>(file)), std::istreambuf_iterator<char>());
+  EXPECT_NE(html.find("rec-06.csv"), std::string::npos);
+  EXPECT_NE(html.find("rec-01.csv"), std::string::npos);
+  r = Run("diagnose " + a + " " + b + " --model " + kExamples + "/seed-8V.json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("diagnosis of " + a + " + " + b), std::string::npos) << r.out;
+
+  r = Run("diagnose " + a + " " + (scratch_.path() / "gone.csv").string());
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("gone.csv"), std::string::npos) << r.err;
+  r = Run("diagnose " + a + " --recent 2");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("--recent"), std::string::npos) << r.err;
+}
+
 }  // namespace
 }  // namespace flexid
 

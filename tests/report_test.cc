@@ -279,7 +279,7 @@ Example BackRelaxationExample() {
 
 TEST(DiagnosisReport, ContainsVerdictExplanationAndFigures) {
   const Example e = BackRelaxationExample();
-  const std::string html = DiagnosisReportHtml(e.recording, e.diagnosis, "Diagnosis of bench 7");
+  const std::string html = DiagnosisReportHtml({e.recording}, e.diagnosis, "Diagnosis of bench 7");
   EXPECT_EQ(html.rfind("<!DOCTYPE html>", 0), 0u);
   EXPECT_NE(html.find("</html>"), std::string::npos);
   EXPECT_NE(html.find("<title>Diagnosis of bench 7</title>"), std::string::npos);
@@ -305,7 +305,7 @@ TEST(DiagnosisReport, ContainsVerdictExplanationAndFigures) {
 
 TEST(DiagnosisReport, ShowsUnexplainedMisfitsOnlyWhenThereAreSome) {
   Example e = BackRelaxationExample();
-  EXPECT_EQ(DiagnosisReportHtml(e.recording, e.diagnosis, "r").find("Unexplained misfits"),
+  EXPECT_EQ(DiagnosisReportHtml({e.recording}, e.diagnosis, "r").find("Unexplained misfits"),
             std::string::npos);
   model::Misfit misfit;
   misfit.resembles = "electrolysis_saturation";
@@ -313,7 +313,7 @@ TEST(DiagnosisReport, ShowsUnexplainedMisfitsOnlyWhenThereAreSome) {
   misfit.where = {{345.6, 524.5}};
   misfit.explanation = "its size is not determined <i>";
   e.diagnosis.unexplained.push_back(misfit);
-  const std::string html = DiagnosisReportHtml(e.recording, e.diagnosis, "r");
+  const std::string html = DiagnosisReportHtml({e.recording}, e.diagnosis, "r");
   EXPECT_NE(html.find("Unexplained misfits"), std::string::npos);
   EXPECT_NE(html.find("<td>electrolysis_saturation</td>"), std::string::npos);
   EXPECT_NE(html.find("not determined &lt;i&gt;"), std::string::npos);
@@ -321,7 +321,7 @@ TEST(DiagnosisReport, ShowsUnexplainedMisfitsOnlyWhenThereAreSome) {
 
 TEST(DiagnosisReport, ParameterTableShowsValueAndHalfWidth) {
   const Example e = BackRelaxationExample();
-  const std::string html = DiagnosisReportHtml(e.recording, e.diagnosis, "report");
+  const std::string html = DiagnosisReportHtml({e.recording}, e.diagnosis, "report");
   EXPECT_NE(html.find("0.154 &plusmn; 0.0123"), std::string::npos);
   EXPECT_NE(html.find("8.04 &plusmn; 0.91"), std::string::npos);
   EXPECT_NE(html.find("0.141 &rarr; 0.0123"), std::string::npos);  // held-out RMSE
@@ -329,7 +329,7 @@ TEST(DiagnosisReport, ParameterTableShowsValueAndHalfWidth) {
 
 TEST(DiagnosisReport, EscapesHostileStrings) {
   const Example e = BackRelaxationExample();
-  const std::string html = DiagnosisReportHtml(e.recording, e.diagnosis, "<script>t</script>");
+  const std::string html = DiagnosisReportHtml({e.recording}, e.diagnosis, "<script>t</script>");
   EXPECT_EQ(html.find("<script"), std::string::npos);
   EXPECT_EQ(html.find("<b>"), std::string::npos);
   EXPECT_NE(html.find("&lt;script&gt;evil()&lt;/script&gt;"), std::string::npos);
@@ -339,7 +339,7 @@ TEST(DiagnosisReport, EscapesHostileStrings) {
 
 TEST(DiagnosisReport, SelfContained) {
   const Example e = BackRelaxationExample();
-  const std::string html = DiagnosisReportHtml(e.recording, e.diagnosis, "report");
+  const std::string html = DiagnosisReportHtml({e.recording}, e.diagnosis, "report");
   // The only URL is the SVG namespace, which names the vocabulary and is never fetched.
   const std::string svg_namespace = "http://www.w3.org/2000/svg";
   EXPECT_EQ(Count(html, "https://"), 0u);
@@ -350,7 +350,7 @@ TEST(DiagnosisReport, SelfContained) {
   EXPECT_EQ(html.find("<img"), std::string::npos);
   EXPECT_GE(Count(html, "<svg"), 3u);  // deflection, voltage, residual
   EXPECT_EQ(Count(html, "<svg"), Count(html, "</svg>"));
-  EXPECT_EQ(html, DiagnosisReportHtml(e.recording, e.diagnosis, "report"));  // deterministic
+  EXPECT_EQ(html, DiagnosisReportHtml({e.recording}, e.diagnosis, "report"));  // deterministic
 }
 
 TEST(DiagnosisReport, NoFindingAndShortSeries) {
@@ -361,7 +361,7 @@ TEST(DiagnosisReport, NoFindingAndShortSeries) {
   e.diagnosis.baseline_model.rules.resize(2);
   e.diagnosis.augmented_mm.resize(10);  // shorter than the recording: drawn where it exists
   e.diagnosis.localisation = {};
-  const std::string html = DiagnosisReportHtml(e.recording, e.diagnosis, "report");
+  const std::string html = DiagnosisReportHtml({e.recording}, e.diagnosis, "report");
   EXPECT_NE(html.find("Verdict: none"), std::string::npos);
   EXPECT_NE(html.find("identified on this recording"), std::string::npos);
   EXPECT_NE(html.find("2 local models"), std::string::npos);

@@ -1,10 +1,12 @@
-// flexid diagnose REC.csv [--model MODEL.json] [--json] [--report REPORT.html]
+// flexid diagnose REC.csv [REC2.csv ...] [--model MODEL.json] [--json] [--report REPORT.html]
 //                         [--out AUGMENTED.json]
-// flexid diagnose --actuator ID [--trial N] [--no-model] [--json] [--timeout S]
-//                                                     (in flexidd, on a stored trial)
-// flexid [--db PATH] diagnose --trial N [--actuator ID] [--model M.json | --no-model]
+// flexid diagnose --actuator ID [--trial N ... | --recent K] [--no-model] [--json]
+//                 [--timeout S]                       (in flexidd, on stored trials)
+// flexid [--db PATH] diagnose --trial N ... [--actuator ID] [--model M.json | --no-model]
 //                             [--json] [--report R.html] [--out AUGMENTED.json]
-//                                                     (here, on a stored trial)
+//                                                     (here, on stored trials)
+// Several recordings (or trials) of one actuator make one diagnosis from the evidence of
+// all of them (model/diagnose.h).
 // Where a model and a recording disagree, which physics the model leaves out, a model of
 // it, and the held-out improvement (model/diagnose.h; JSON format in DESIGN.md).
 //
@@ -36,14 +38,15 @@ namespace {
 using nlohmann::json;
 
 struct DiagnoseArgs {
-  std::string recording_path;
+  std::vector<std::string> recording_paths;
   std::string model_path;
   std::string report_path;
   std::string out_path;
   bool json = false;
   // Stored trials instead of a CSV file.
   std::string actuator;
-  int64_t trial = 0;
+  std::vector<int64_t> trials;  // empty: the latest finished one (or --recent)
+  int recent = 0;               // the actuator's latest K finished trials
   bool no_model = false;
   double timeout_s = 300.0;
 };
@@ -60,10 +63,15 @@ std::string Text(const json& object, const char* key) {
   return it != object.end() && it->is_string() ? it->get<std::string>() : "";
 }
 
-std::string Spans(const json& spans) {
+// "12-30 s, ..."; with several recordings ("recordings": their names) each span names its.
+std::string Spans(const json& spans, const json& recordings) {
   std::string text;
   for (const json& s : spans) {
     if (!text.empty()) text += ", ";
+    const double index = NumberOr(s, "recording", -1);
+    if (recordings.is_array() && index >= 0 && index < static_cast<double>(recordings.size()) &&
+        recordings[static_cast<size_t>(index)].is_string())
+      text += recordings[static_cast<size_t>(index)].get<std::string>() + " ";
     text += FormatNumber(NumberOr(s, "t_start_s"), 4) + "-" +
             FormatNumber(NumberOr(s, "t_end_s"), 4) + " s";
   }
@@ -88,6 +96,7 @@ std::string Params(const json& item) {
 // and `against` the trusted model (empty: the baseline was identified on the recording).
 void PrintHuman(const std::string& subject, const std::string& against, const json& d) {
   const json baseline = d.value("baseline", json::object());
+  const json recordings = d.value("recordings", json());
   std::printf("diagnosis of %s %s\n", subject.c_str(),
               !against.empty() ? ("against " + against + " (trusted model)").c_str()
                                : "(baseline identified on the recording by the global T-S fit)");
@@ -98,11 +107,12 @@ void PrintHuman(const std::string& subject, const std::string& against, const js
       FormatNumber(NumberOr(baseline, "rmse_mm"), 3).c_str(),
       FormatNumber(NumberOr(baseline, "heldout_rmse_mm"), 3).c_str(),
       FormatNumber(NumberOr(d, "noise_std_mm"), 2).c_str());
-  std::printf("  held out from every fit: %s\n", Spans(d.value("heldout", json::array())).c_str());
+  std::printf("  held out from every fit: %s\n",
+              Spans(d.value("heldout", json::array()), recordings).c_str());
   std::printf("\nverdict: %s\n", Text(d, "verdict").c_str());
   for (const json& f : d.value("findings", json::array())) {
     std::printf("  %s: %s\n", Text(f, "effect").c_str(), Text(f, "explanation").c_str());
-    std::printf("    where: %s\n", Spans(f.value("where", json::array())).c_str());
+    std::printf("    where: %s\n", Spans(f.value("where", json::array()), recordings).c_str());
     std::printf("    params: %s\n", Params(f).c_str());
     std::printf("    held-out RMSE: %s -> %s mm\n",
                 FormatNumber(NumberOr(f, "heldout_rmse_before_mm"), 3).c_str(),
@@ -110,7 +120,7 @@ void PrintHuman(const std::string& subject, const std::string& against, const js
   }
   for (const json& m : d.value("unexplained", json::array())) {
     std::printf("  unexplained misfit: %s\n", Text(m, "explanation").c_str());
-    std::printf("    where: %s\n", Spans(m.value("where", json::array())).c_str());
+    std::printf("    where: %s\n", Spans(m.value("where", json::array()), recordings).c_str());
   }
   for (const json& a : d.value("absorbed", json::array()))
     std::printf("  absorbed by the identified model (not named): %s\n",
@@ -158,11 +168,11 @@ void PrintHuman(const std::string& subject, const std::string& against, const js
     if (note.is_string()) std::printf("note: %s\n", note.get<std::string>().c_str());
 }
 
-// What is diagnosed here: the recording, the trusted model (if any) and their names.
+// What is diagnosed here: the recordings, the trusted model (if any) and their names.
 struct LocalCase {
-  model::Recording recording;
+  std::vector<model::Recording> recordings;
   std::optional<model::ModelDocument> doc;
-  std::string subject;          // "run.csv", "trial 5 of S1"
+  std::string subject;          // "run.csv", "trial 5 of S1", "trials 4, 5 of S1"
   std::string model_name;       // "s1.json", "S1 model v2"; empty without a model
   json extra = json::object();  // members added to the JSON (trial, model_version)
 };
@@ -175,12 +185,12 @@ void DiagnoseHere(const DiagnoseArgs& args, const LocalCase& c) {
     trusted = model::AsTsModel(*c.doc);
     options.baseline_effects = model::EffectsOf(*c.doc, c.model_name);
   }
-  const model::Diagnosis d = model::Diagnose(c.recording, trusted, options);
+  const model::Diagnosis d = model::Diagnose(c.recordings, trusted, options);
   if (!args.report_path.empty()) {
     try {
       model::WriteFileAtomically(
           args.report_path,
-          DiagnosisReportHtml(c.recording, d, "flexid diagnosis of " + c.subject));
+          DiagnosisReportHtml(c.recordings, d, "flexid diagnosis of " + c.subject));
     } catch (const model::InputError& e) {
       throw OperationError(e.what());
     }
@@ -223,8 +233,10 @@ void DiagnoseHere(const DiagnoseArgs& args, const LocalCase& c) {
 
 void RunCsv(const DiagnoseArgs& args) {
   LocalCase c;
-  c.recording = model::ReadRecordingCsv(args.recording_path);
-  c.subject = args.recording_path;
+  for (const std::string& path : args.recording_paths) {
+    c.recordings.push_back(model::ReadRecordingCsv(path));
+    c.subject += (c.subject.empty() ? "" : " + ") + path;
+  }
   if (!args.model_path.empty()) {
     c.doc = model::ReadModelFile(args.model_path);
     c.model_name = args.model_path;
@@ -232,32 +244,51 @@ void RunCsv(const DiagnoseArgs& args) {
   DiagnoseHere(args, c);
 }
 
-// The trial flexidd would pick: the latest finished trial of the actuator with at least
-// 200 samples.
-int64_t LatestTrial(const std::string& actuator) {
+// The trials flexidd would pick: the actuator's latest `count` finished trials with at least
+// 200 samples, oldest first.
+std::vector<int64_t> LatestTrials(const std::string& actuator, int count) {
+  std::vector<int64_t> ids;
   for (const json& t : Query("trials", {{"actuator", actuator}, {"limit", 1000}}))
-    if (t.value("state", "") != "recording" && t.value("samples", int64_t{0}) >= 200)
-      return t.value("id", int64_t{0});
-  throw UsageError(actuator + " has no finished trial to diagnose");
+    if (t.value("state", "") != "recording" && t.value("samples", int64_t{0}) >= 200 &&
+        static_cast<int>(ids.size()) < count)
+      ids.insert(ids.begin(), t.value("id", int64_t{0}));
+  if (ids.empty()) throw UsageError(actuator + " has no finished trial to diagnose");
+  return ids;
 }
 
-// A stored trial diagnosed here (offline, or online with --report/--out/--model).
+// "trial 5" or "trials 4, 5, 7".
+std::string TrialWords(const std::vector<int64_t>& ids) {
+  std::string text = ids.size() == 1 ? "trial " : "trials ";
+  for (size_t i = 0; i < ids.size(); ++i) text += (i ? ", " : "") + std::to_string(ids[i]);
+  return text;
+}
+
+// Stored trials diagnosed here (offline, or online with --report/--out/--model).
 void RunStoredHere(const DiagnoseArgs& args) {
-  const int64_t trial_id = args.trial != 0 ? args.trial : LatestTrial(args.actuator);
+  const std::vector<int64_t> trial_ids =
+      !args.trials.empty() ? args.trials : LatestTrials(args.actuator, std::max(args.recent, 1));
   LocalCase c;
-  StoredTrial trial;
-  {
-    Progress progress("load trial " + std::to_string(trial_id));
-    trial = LoadTrial(trial_id,
-                      [&progress](int64_t done, int64_t total) { progress.Update(done, total); });
+  std::string owner;
+  for (int64_t trial_id : trial_ids) {
+    StoredTrial trial;
+    {
+      Progress progress("load trial " + std::to_string(trial_id));
+      trial = LoadTrial(trial_id,
+                        [&progress](int64_t done, int64_t total) { progress.Update(done, total); });
+    }
+    const std::string of = trial.trial.value("actuator", "");
+    const std::string expected = !args.actuator.empty() ? args.actuator : owner;
+    if (!expected.empty() && of != expected)
+      throw UsageError("--trial: trial " + std::to_string(trial_id) + " belongs to " + of +
+                       ", not " + expected + " (one diagnosis covers one actuator)");
+    owner = of;
+    c.recordings.push_back(RecordingOf(trial, 200));
   }
-  const std::string owner = trial.trial.value("actuator", "");
-  if (!args.actuator.empty() && owner != args.actuator)
-    throw UsageError("--trial: trial " + std::to_string(trial_id) + " belongs to " + owner +
-                     ", not " + args.actuator);
-  c.recording = RecordingOf(trial, 200);
-  c.subject = "trial " + std::to_string(trial_id) + " of " + owner;
-  c.extra["trial"] = trial_id;
+  c.subject = TrialWords(trial_ids) + " of " + owner;
+  if (trial_ids.size() == 1)
+    c.extra["trial"] = trial_ids.front();
+  else
+    c.extra["trials"] = trial_ids;
   c.extra["model_version"] = 0;
   if (!args.model_path.empty()) {
     c.doc = model::ReadModelFile(args.model_path);
@@ -277,14 +308,18 @@ void RunStoredHere(const DiagnoseArgs& args) {
   DiagnoseHere(args, c);
 }
 
-// Online: flexidd diagnoses its stored trial; the reply is the diagnosis JSON plus
-// "trial" and "model_version".
+// Online: flexidd diagnoses its stored trials; the reply is the diagnosis JSON plus
+// "trial" (or "trials") and "model_version".
 void RunInDaemon(const DiagnoseArgs& args) {
   json request = {{"actuator", args.actuator}, {"use_model", !args.no_model}};
-  if (args.trial != 0) request["trial"] = args.trial;
+  if (args.trials.size() == 1) request["trial"] = args.trials.front();
+  if (args.trials.size() > 1) request["trials"] = args.trials;
+  if (args.recent > 0) request["recent"] = args.recent;
   Progress progress("diagnose");
-  progress.Note("diagnosing " + args.actuator +
-                (args.trial != 0 ? " trial " + std::to_string(args.trial) : " latest trial") +
+  progress.Note("diagnosing " + args.actuator + " " +
+                (!args.trials.empty() ? TrialWords(args.trials)
+                 : args.recent > 1    ? "latest " + std::to_string(args.recent) + " trials"
+                                      : std::string("latest trial")) +
                 " in flexidd ...");
   const json reply = CallOnline("diagnose", request, args.timeout_s);
   progress.Finish();
@@ -293,25 +328,43 @@ void RunInDaemon(const DiagnoseArgs& args) {
     return;
   }
   const int64_t version = reply.value("model_version", int64_t{0});
-  PrintHuman("trial " + std::to_string(reply.value("trial", int64_t{0})) + " of " + args.actuator,
+  std::vector<int64_t> diagnosed;
+  if (const json trials = reply.value("trials", json()); trials.is_array())
+    for (const json& id : trials)
+      if (id.is_number_integer()) diagnosed.push_back(id.get<int64_t>());
+  if (diagnosed.empty()) diagnosed.push_back(reply.value("trial", int64_t{0}));
+  PrintHuman(TrialWords(diagnosed) + " of " + args.actuator,
              version != 0 ? args.actuator + " model v" + std::to_string(version) : "", reply);
 }
 
 void RunDiagnose(const DiagnoseArgs& args) {
-  const bool stored = !args.actuator.empty() || args.trial != 0;
-  if (!args.recording_path.empty()) {
+  const bool stored = !args.actuator.empty() || !args.trials.empty() || args.recent != 0;
+  if (!args.recording_paths.empty()) {
     if (stored || args.no_model)
       throw UsageError(
-          "a REC.csv file cannot be combined with --actuator, --trial or --no-model: "
-          "diagnose either the file or a stored trial");
+          "a REC.csv file cannot be combined with --actuator, --trial, --recent or --no-model: "
+          "diagnose either files or stored trials");
     RunCsv(args);
     return;
   }
   if (!stored)
     throw UsageError(
-        "nothing to diagnose: give a REC.csv file, or --actuator ID / --trial N for "
-        "a stored trial");
-  if (args.trial < 0) throw UsageError("--trial: expected a trial id >= 1");
+        "nothing to diagnose: give REC.csv files, or --actuator ID / --trial N for "
+        "stored trials");
+  for (int64_t id : args.trials)
+    if (id < 1) throw UsageError("--trial: expected a trial id >= 1, got " + std::to_string(id));
+  for (size_t i = 0; i < args.trials.size(); ++i)
+    for (size_t j = 0; j < i; ++j)
+      if (args.trials[i] == args.trials[j])
+        throw UsageError("--trial: trial " + std::to_string(args.trials[i]) + " given twice");
+  if (args.recent != 0 && (args.recent < 1 || args.recent > model::kMaxDiagnosedRecordings))
+    throw UsageError("--recent: expected 1 to " + std::to_string(model::kMaxDiagnosedRecordings) +
+                     " trials");
+  if (args.recent != 0 && (!args.trials.empty() || args.actuator.empty()))
+    throw UsageError("--recent needs --actuator and excludes --trial");
+  if (args.trials.size() > static_cast<size_t>(model::kMaxDiagnosedRecordings))
+    throw UsageError("--trial: at most " + std::to_string(model::kMaxDiagnosedRecordings) +
+                     " trials in one diagnosis");
   if (!args.model_path.empty() && args.no_model)
     throw UsageError("--model and --no-model exclude each other");
   if (!(args.timeout_s > 0.0) || !std::isfinite(args.timeout_s))
@@ -332,7 +385,9 @@ void RegisterDiagnoseCommand(CLI::App& app) {
       "diagnose",
       "Find where a recording departs from a model, name the missing physics, model it and "
       "measure the improvement on held-out samples");
-  cmd->add_option("RECORDING", args->recording_path, "Recording CSV (t_s,voltage_V,deflection_mm)");
+  cmd->add_option("RECORDING", args->recording_paths,
+                  "Recording CSV (t_s,voltage_V,deflection_mm); several recordings of one "
+                  "actuator make one diagnosis");
   cmd->add_option("--model", args->model_path,
                   "Trusted model file; without it the seed's structure is identified on the "
                   "recording (a stored trial: the actuator's active model)");
@@ -343,8 +398,12 @@ void RegisterDiagnoseCommand(CLI::App& app) {
   cmd->add_option(
       "--actuator", args->actuator,
       "Diagnose a stored trial of this actuator (in flexidd unless --db/--report/--out)");
-  cmd->add_option("--trial", args->trial,
-                  "Stored trial id (default: the actuator's latest finished trial)");
+  cmd->add_option("--trial", args->trials,
+                  "Stored trial id; repeat for several trials of one actuator (default: the "
+                  "actuator's latest finished trial)");
+  cmd->add_option("--recent", args->recent,
+                  "Diagnose the actuator's latest K finished trials together (1-" +
+                      std::to_string(model::kMaxDiagnosedRecordings) + ")");
   cmd->add_flag("--no-model", args->no_model,
                 "Stored trial: identify the baseline on the trial instead of using the "
                 "actuator's active model");
@@ -357,6 +416,8 @@ void RegisterDiagnoseCommand(CLI::App& app) {
       "or --no-model says otherwise. The JSON of a stored trial adds \"trial\" and\n"
       "\"model_version\" (0: baseline identified on the trial).\n"
       "Examples:\n  flexid diagnose run.csv --model examples/seed-8V.json --report run.html\n"
+      "  flexid diagnose steps.csv squares.csv --json\n"
+      "  flexid diagnose --actuator S1 --recent 3\n"
       "  flexid diagnose run.csv --json\n"
       "  flexid diagnose --actuator S1 --trial 4\n"
       "  flexid --db var/flexid.db diagnose --trial 4 --report trial4.html");

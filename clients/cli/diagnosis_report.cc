@@ -88,10 +88,15 @@ std::string PassFail(bool passed, const char* pass_text, const char* fail_text) 
                 : std::string("<span class=\"fail\">") + fail_text + "</span>";
 }
 
-std::string Spans(const std::vector<model::TimeSpan>& spans) {
+// "12&ndash;30 s, ...", each span prefixed with its recording's name when the diagnosis
+// covered several.
+std::string Spans(const std::vector<model::TimeSpan>& spans, const model::Diagnosis& diagnosis) {
   std::string out;
   for (const auto& s : spans) {
     if (!out.empty()) out += ", ";
+    if (diagnosis.recordings.size() > 1 && s.recording >= 0 &&
+        static_cast<size_t>(s.recording) < diagnosis.recordings.size())
+      out += "<code>" + Html(diagnosis.recordings[static_cast<size_t>(s.recording)]) + "</code> ";
     out += Number(s.t_start_s) + "&ndash;" + Number(s.t_end_s) + " s";
   }
   return out.empty() ? "none" : out;
@@ -116,18 +121,21 @@ std::vector<double> Difference(const std::vector<double>& a, const std::vector<d
   return out;
 }
 
-void AddHeldOutSpans(const model::Diagnosis& diagnosis, Chart* chart) {
+// The held-out blocks of recording `recording` (its index among the diagnosed ones).
+void AddHeldOutSpans(const model::Diagnosis& diagnosis, int recording, Chart* chart) {
   for (const auto& s : diagnosis.heldout)
-    chart->spans.push_back(
-        {s.t_start_s, s.t_end_s, kHeldOutColour, 0.35, "held out (no fit saw these samples)"});
+    if (s.recording == recording)
+      chart->spans.push_back(
+          {s.t_start_s, s.t_end_s, kHeldOutColour, 0.35, "held out (no fit saw these samples)"});
 }
 
-void AddEffectSpans(const model::Diagnosis& diagnosis, Chart* chart) {
+void AddEffectSpans(const model::Diagnosis& diagnosis, int recording, Chart* chart) {
   if (diagnosis.findings.empty()) return;
   const model::Finding& verdict = diagnosis.findings.front();
   for (const auto& s : verdict.where)
-    chart->spans.push_back(
-        {s.t_start_s, s.t_end_s, kEffectColour, 0.22, "where " + verdict.effect + " acts"});
+    if (s.recording == recording)
+      chart->spans.push_back(
+          {s.t_start_s, s.t_end_s, kEffectColour, 0.22, "where " + verdict.effect + " acts"});
 }
 
 std::string Headline(const model::Diagnosis& diagnosis) {
@@ -167,33 +175,45 @@ std::string Headline(const model::Diagnosis& diagnosis) {
     figure("RMSE, held-out samples, with the findings (mm)",
            Number(diagnosis.findings.back().heldout_rmse_after_mm));
   figure("noise estimate, standard deviation (mm)", Number(diagnosis.noise_std_mm));
-  html += "<tr><th>held-out blocks</th>" + Cell(Spans(diagnosis.heldout)) + "</tr>\n";
+  html += "<tr><th>held-out blocks</th>" + Cell(Spans(diagnosis.heldout, diagnosis)) + "</tr>\n";
   html += "</table>\n";
   return html;
 }
 
-std::string Plots(const model::Recording& recording, const model::Diagnosis& diagnosis) {
+// The charts of one recording; `offset`: its first sample in the diagnosis's predictions
+// (which run through the recordings in order).
+std::string RecordingPlots(const model::Recording& recording, size_t offset, int index,
+                           const model::Diagnosis& diagnosis) {
   const bool found = !diagnosis.findings.empty();
   const auto& t = recording.t_s;
-  std::string html = "<h2>Measured and predicted deflection</h2>\n";
+  auto slice = [&](const std::vector<double>& all) {
+    const size_t first = std::min(offset, all.size());
+    const size_t last = std::min(offset + t.size(), all.size());
+    return std::vector<double>(all.begin() + static_cast<ptrdiff_t>(first),
+                               all.begin() + static_cast<ptrdiff_t>(last));
+  };
+  const std::vector<double> baseline_mm = slice(diagnosis.baseline_mm);
+  const std::vector<double> augmented_mm = slice(diagnosis.augmented_mm);
+  std::string html = "<h2>Measured and predicted deflection";
+  if (diagnosis.recordings.size() > 1) html += ": <code>" + Html(recording.source) + "</code>";
+  html += "</h2>\n";
 
   Chart deflection;
   deflection.x_label = "time (s)";
   deflection.y_label = "deflection (mm)";
-  AddHeldOutSpans(diagnosis, &deflection);
-  AddEffectSpans(diagnosis, &deflection);
+  AddHeldOutSpans(diagnosis, index, &deflection);
+  AddEffectSpans(diagnosis, index, &deflection);
   deflection.series.push_back(TimeSeries("measured", t, recording.deflection_mm, kMeasuredColour));
-  deflection.series.push_back(
-      TimeSeries("baseline prediction", t, diagnosis.baseline_mm, kBaselineColour));
+  deflection.series.push_back(TimeSeries("baseline prediction", t, baseline_mm, kBaselineColour));
   if (found)
     deflection.series.push_back(
-        TimeSeries("augmented prediction", t, diagnosis.augmented_mm, kAugmentedColour, true));
+        TimeSeries("augmented prediction", t, augmented_mm, kAugmentedColour, true));
   html += RenderSvg(deflection, kChartWidthPx, 400) + "\n";
 
   Chart voltage;
   voltage.x_label = "time (s)";
   voltage.y_label = "voltage (V)";
-  AddHeldOutSpans(diagnosis, &voltage);
+  AddHeldOutSpans(diagnosis, index, &voltage);
   Series applied = TimeSeries("applied voltage", t, recording.voltage_V, "#555555");
   applied.step = true;
   voltage.series.push_back(std::move(applied));
@@ -204,23 +224,35 @@ std::string Plots(const model::Recording& recording, const model::Diagnosis& dia
   if (found) html += " Orange bands: where the verdict's effect acts.";
   html += "</p>\n";
 
-  html += "<h2>Residual</h2>\n";
+  html += "<h2>Residual";
+  if (diagnosis.recordings.size() > 1) html += ": <code>" + Html(recording.source) + "</code>";
+  html += "</h2>\n";
   Chart residual;
   residual.x_label = "time (s)";
   residual.y_label = "measured \u2212 predicted (mm)";
-  AddHeldOutSpans(diagnosis, &residual);
-  AddEffectSpans(diagnosis, &residual);
-  residual.series.push_back(TimeSeries("before (baseline)", t,
-                                       Difference(recording.deflection_mm, diagnosis.baseline_mm),
-                                       kBaselineColour));
+  AddHeldOutSpans(diagnosis, index, &residual);
+  AddEffectSpans(diagnosis, index, &residual);
+  residual.series.push_back(TimeSeries(
+      "before (baseline)", t, Difference(recording.deflection_mm, baseline_mm), kBaselineColour));
   if (found)
-    residual.series.push_back(
-        TimeSeries("after (augmented)", t,
-                   Difference(recording.deflection_mm, diagnosis.augmented_mm), kAugmentedColour));
+    residual.series.push_back(TimeSeries("after (augmented)", t,
+                                         Difference(recording.deflection_mm, augmented_mm),
+                                         kAugmentedColour));
   html += RenderSvg(residual, kChartWidthPx, 320) + "\n";
   html +=
       "<p class=\"caption\">A model that explains the physics leaves a residual like noise: "
       "no steps, slopes or shapes that repeat with the input.</p>\n";
+  return html;
+}
+
+std::string Plots(const std::vector<model::Recording>& recordings,
+                  const model::Diagnosis& diagnosis) {
+  std::string html;
+  size_t offset = 0;
+  for (size_t j = 0; j < recordings.size(); ++j) {
+    html += RecordingPlots(recordings[j], offset, static_cast<int>(j), diagnosis);
+    offset += recordings[j].t_s.size();
+  }
   return html;
 }
 
@@ -357,8 +389,8 @@ std::string UnexplainedSection(const model::Diagnosis& diagnosis) {
   std::string html = "<h2>Unexplained misfits</h2>\n<table>\n" +
                      HeaderRow({"resembles", "RMS (mm)", "where", "explanation"});
   for (const auto& m : diagnosis.unexplained)
-    html += "<tr>" + Cell(Html(m.resembles)) + NumberCell(Number(m.rms_mm)) + Cell(Spans(m.where)) +
-            Cell(Html(m.explanation)) + "</tr>\n";
+    html += "<tr>" + Cell(Html(m.resembles)) + NumberCell(Number(m.rms_mm)) +
+            Cell(Spans(m.where, diagnosis)) + Cell(Html(m.explanation)) + "</tr>\n";
   return html + "</table>\n";
 }
 
@@ -402,11 +434,11 @@ std::string RecordingSummaryHtml(const model::Recording& recording) {
   return RecordingSummary(recording);
 }
 
-std::string DiagnosisSectionsHtml(const model::Recording& recording,
+std::string DiagnosisSectionsHtml(const std::vector<model::Recording>& recordings,
                                   const model::Diagnosis& diagnosis, int heading_level) {
   std::string html;
   html += Headline(diagnosis);
-  html += Plots(recording, diagnosis);
+  html += Plots(recordings, diagnosis);
   html += FindingsTable(diagnosis);
   html += CandidateTable(diagnosis);
   html += UnexplainedSection(diagnosis);
@@ -426,10 +458,12 @@ std::string DiagnosisSectionsHtml(const model::Recording& recording,
   return html;
 }
 
-std::string DiagnosisReportHtml(const model::Recording& recording,
+std::string DiagnosisReportHtml(const std::vector<model::Recording>& recordings,
                                 const model::Diagnosis& diagnosis, const std::string& title) {
-  return HtmlPageStart(title) + RecordingSummary(recording) +
-         DiagnosisSectionsHtml(recording, diagnosis) + HtmlPageEnd();
+  std::string summaries;
+  for (const model::Recording& r : recordings) summaries += RecordingSummary(r);
+  return HtmlPageStart(title) + summaries + DiagnosisSectionsHtml(recordings, diagnosis) +
+         HtmlPageEnd();
 }
 
 }  // namespace flexid::cli

@@ -18,6 +18,7 @@
 #pragma once
 
 #include <string>
+#include <vector>
 
 #include "model/diagnose.h"
 #include "model/identify.h"
@@ -35,8 +36,9 @@ std::string HtmlPageEnd();
 std::string RecordingSummaryHtml(const model::Recording& recording);
 
 // The diagnosis sections listed above (verdict to notes), with headings at heading_level
-// (2: <h2>; 3 nests them under a page's own <h2>).
-std::string DiagnosisSectionsHtml(const model::Recording& recording,
+// (2: <h2>; 3 nests them under a page's own <h2>). `recordings`: what was diagnosed, in the
+// order given to model::Diagnose (one chart set each).
+std::string DiagnosisSectionsHtml(const std::vector<model::Recording>& recordings,
                                   const model::Diagnosis& diagnosis, int heading_level = 2);
 
 // The whiteness and input cross-correlation tests of a fit as a table: statistic,
@@ -45,7 +47,7 @@ std::string ResidualTestsTableHtml(const model::FitFigures& fit);
 
 // The page; `title` heads it (escaped). Series shorter than the recording are drawn over
 // the samples they cover.
-std::string DiagnosisReportHtml(const model::Recording& recording,
+std::string DiagnosisReportHtml(const std::vector<model::Recording>& recordings,
                                 const model::Diagnosis& diagnosis, const std::string& title);
 
 }  // namespace flexid::cli

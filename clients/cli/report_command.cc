@@ -260,7 +260,7 @@ Report BuildReport(const ReportArgs& args) {
           "<code>flexid diagnose</code> does.</p>\n";
     }
     const model::Diagnosis diagnosis = model::Diagnose(rec.recording, trusted, options);
-    html += DiagnosisSectionsHtml(rec.recording, diagnosis, 3);
+    html += DiagnosisSectionsHtml({rec.recording}, diagnosis, 3);
     report.verdict = diagnosis.verdict;
   }
   html += HtmlPageEnd();
