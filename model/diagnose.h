@@ -84,6 +84,7 @@
 #include <string>
 #include <vector>
 
+#include "model/effects.h"
 #include "model/identify.h"
 #include "model/model_file.h"
 #include "model/recording.h"
@@ -91,47 +92,11 @@
 
 namespace flexid::model {
 
-// The catalogue. Each entry: its physical meaning, its residual signature and its model
-// are documented at the definition (diagnose.cc) and printed by EffectDescription.
-enum class EffectKind {
-  kBackRelaxation,          // slow relaxation opposing the response under sustained voltage
-  kCreep,                   // slow further bending under sustained voltage (its opposite)
-  kCycleDegradation,        // gain lost with transferred charge (cycles)
-  kHysteresis,              // rate-independent, direction-dependent lag (play operator)
-  kElectrolysisSaturation,  // response compressed above a voltage
-  kDeadZone,                // no response below a threshold voltage
-  kSensorDrift,             // baseline drifting independent of the input
-  kPolarityAsymmetry,       // negative voltage acts with another gain
-};
-
-const char* EffectName(EffectKind kind);  // "back_relaxation", ...
-bool ParseEffectName(const std::string& name, EffectKind* kind);
-std::vector<EffectKind> AllEffects();
-// One sentence: the physics, and how it shows in the residual.
-const char* EffectDescription(EffectKind kind);
-
-// One effect with its parameters (values in EffectParameterNames order).
-struct Effect {
-  EffectKind kind = EffectKind::kBackRelaxation;
-  std::vector<double> params;
-};
-// Parameter names with units, e.g. {"fraction", "tau_s"}.
-std::vector<std::string> EffectParameterNames(EffectKind kind);
-
 // The baseline's prediction for the recording with the effects applied in order (input
 // effects change the voltage the model is driven with, output effects change the
 // deflection). Throws std::invalid_argument for a wrong parameter count.
 std::vector<double> SimulateAugmented(const TsModel& baseline, const Recording& recording,
                                       const std::vector<Effect>& effects);
-
-// Model-file augmentations ({"effect": NAME, "params": {NAME: value, ...}}) and effects.
-// Throws InputError naming the effect and the problem (unknown effect, a missing or
-// non-finite parameter).
-Effect EffectFromAugmentation(const Augmentation& augmentation);
-Augmentation AugmentationOf(const Effect& effect);
-// Every augmentation of a model document as an effect; errors are prefixed with `source`
-// (the file or record the document came from).
-std::vector<Effect> EffectsOf(const ModelDocument& document, const std::string& source);
 
 struct TimeSpan {
   double t_start_s = 0.0;
@@ -242,10 +207,10 @@ Diagnosis Diagnose(const Recording& recording, const std::optional<TsModel>& tru
 // spread over the whole. A relaxation and a hysteresis state start afresh in each
 // recording; effects that belong to the actuator's or the sensor's history run through the
 // recordings in order, the gaps between them not counted (a degradation's charge
-// accumulates from one to the next; a sensor drift's warm-up happens once). An identified baseline is identified on all of them (they must share
-// a sample period). Spans (held-out, where) say which recording they are in
-// (TimeSpan::recording), on its own times; baseline_mm and augmented_mm run through the
-// recordings in order. Errors name the recording.
+// accumulates from one to the next; a sensor drift's warm-up happens once). An identified baseline
+// is identified on all of them (they must share a sample period). Spans (held-out, where) say which
+// recording they are in (TimeSpan::recording), on its own times; baseline_mm and augmented_mm run
+// through the recordings in order. Errors name the recording.
 constexpr int kMaxDiagnosedRecordings = 16;  // in one diagnosis (InputError beyond)
 Diagnosis Diagnose(const std::vector<Recording>& recordings,
                    const std::optional<TsModel>& trusted_model,

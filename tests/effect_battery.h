@@ -1,6 +1,6 @@
 // An acceptance battery for the mismatch diagnosis (model/diagnose.h) on physics its
 // catalogue does not contain: the independent T-S test plant (ts_plant.h) plus at most one
-// concealed effect, each formulated otherwise than the diagnosis models it (diagnose.cc
+// concealed effect, each formulated otherwise than the diagnosis models it (effects.cc
 // Catalogue, ApplyInputEffect, ApplyOutputEffect) and otherwise than the older lab
 // (effect_plant.h), driven by a protocol drawn from a lab's usual set.
 //
