@@ -40,6 +40,7 @@
 #include "bus/lcm_url.h"
 #include "daemon/health.h"
 #include "daemon/rpc.h"
+#include "daemon/unique_fd.h"
 #include "flexid/version.h"
 #include "lcmtypes/message_auth.h"
 #include "lcmtypes/wire_check.h"
@@ -153,7 +154,7 @@ std::string TrialWords(const std::vector<int64_t>& ids) {
 struct IdentifyResult {
   RpcContext request;
   std::string actuator_id;
-  std::optional<storage::ModelRecord> model;  // stored and active
+  std::optional<storage::ModelRecord> model;  // identified, to be stored (the writer) as active
   std::string error;
   nlohmann::json diagnosis = nullptr;  // the diagnose method's result
   // The diagnosed trials and their first samples' times (empty: an identification).
@@ -166,23 +167,35 @@ struct IdentifyResult {
 struct Daemon::Impl {
   Config config;
   std::string config_path;
+  // The loop's connection: reads only once the loop runs (RPC queries, active models; in
+  // WAL mode a reader never waits for a writer). Every write goes through `writer`.
   storage::Database db;
   // Requests and trial control that change data must be signed (message_auth.h). Loaded
   // after the database opens (a database that cannot be written is the first thing to
   // say) and before the bus is joined.
   auth::Verifier verifier;
-  std::unique_ptr<storage::SampleWriter> writer;
   lcm::LCM lcm;
+  UniqueFd signal_fd;
+  UniqueFd wake_fd;  // the worker and the writer say they have something for the loop
+  // The one thread that writes (storage/sample_writer.h): declared after wake_fd, which
+  // its on_outcome uses until it is gone.
+  std::unique_ptr<storage::SampleWriter> writer;
+  // Trial ids are handed out here, on the loop, from the highest one in the file: a trial
+  // has its id before the writer has stored it.
+  int64_t next_trial_id = 1;
+  // What the loop does once a write is committed or refused (replies that wait for it).
+  std::multimap<uint64_t, std::function<void(const storage::WriteOutcome&)>> on_written;
+  uint64_t last_ticket = 0;       // of the last write the loop queued
+  uint64_t last_done_ticket = 0;  // of the last write committed or refused (in this order)
   // Updated by the loop, read by status and by other threads (counters()): relaxed atomics.
   struct LiveCounters {
     std::atomic<int64_t> messages_received{0}, samples_accepted{0}, rejected_malformed{0},
         rejected_nonfinite{0}, rejected_out_of_order{0}, rejected_unknown_actuator{0},
-        dropped_queue_full{0}, predictions_published{0}, alerts_raised{0}, refused_unauthorized{0};
+        dropped_queue_full{0}, predictions_published{0}, alerts_raised{0}, alerts_dropped{0},
+        refused_unauthorized{0};
   } counters;
   std::map<std::string, ActuatorState> actuators;
   std::atomic<bool> stop{false};
-  int signal_fd = -1;
-  int wake_fd = -1;
   std::chrono::steady_clock::time_point started = std::chrono::steady_clock::now();
   std::chrono::steady_clock::time_point next_status = started;
 
@@ -197,13 +210,12 @@ struct Daemon::Impl {
   std::vector<int> background_cpus;  // pin_threads: the writer's and the worker's CPUs
 
   // Health (see "Health" below): the time of this loop pass, the database file's identity,
-  // the storage failure in progress, and alerts waiting for a writable database.
+  // the storage failure in progress.
   std::chrono::steady_clock::time_point loop_now = started;
   std::optional<FileIdentity> database_identity;
   bool storage_failing = false;
   std::chrono::steady_clock::time_point storage_failing_since{};
-  int64_t drops_when_failing = 0, drops_reported = 0;
-  std::deque<storage::AlertRecord> unstored_alerts;
+  int64_t drops_when_failing = 0, drops_reported = 0, alert_drops_reported = 0;
 
   Impl(Config c, std::string path)
       : config(std::move(c)),
@@ -217,17 +229,19 @@ struct Daemon::Impl {
     // thread starts, so that every thread inherits the mask: a SIGTERM delivered to the
     // writer or the worker would otherwise end the process without flushing.
     BlockHandledSignals();
+    const sigset_t signals = HandledSignals();
+    signal_fd = UniqueFd(signalfd(-1, &signals, SFD_NONBLOCK | SFD_CLOEXEC));
+    wake_fd = UniqueFd(eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC));
+    if (!signal_fd.valid() || !wake_fd.valid())
+      throw std::runtime_error("cannot create signal or wake descriptors");
 
+    // The one write of start-up on this connection, before the writer and the loop run:
+    // trials are ended before new ones get ids.
     const int interrupted = db.MarkRecordingTrialsInterrupted();
     if (interrupted > 0)
       spdlog::warn("trials left recording by an earlier run marked interrupted [count: {}]",
                    interrupted);
-    for (const storage::Actuator& a : config.actuators) {
-      db.UpsertActuator(a);
-      AddActuator(a);
-    }
-    for (const storage::Actuator& a : db.Actuators())
-      if (!actuators.count(a.id)) AddActuator(a);
+    next_trial_id = db.LastTrialId() + 1;
     storage::SampleWriterOptions options;
     options.commit_interval = std::chrono::milliseconds(config.commit_interval_ms);
     options.thread_nice = kBackgroundNice;
@@ -243,7 +257,14 @@ struct Daemon::Impl {
       CPU_SET(0, &set);
       pthread_setaffinity_np(pthread_self(), sizeof set, &set);
     }
+    options.on_outcome = [this] { Wake(); };
     writer = std::make_unique<storage::SampleWriter>(config.database, options);
+    for (const storage::Actuator& a : config.actuators) {
+      Store(a);
+      AddActuator(a);
+    }
+    for (const storage::Actuator& a : db.Actuators())
+      if (!actuators.count(a.id)) AddActuator(a);
 
     // LCM keeps at most 30 undispatched messages per subscription by default and drops
     // the rest silently; 16 actuators at 500 Hz need far more between two loop passes.
@@ -254,12 +275,6 @@ struct Daemon::Impl {
         ->setQueueCapacity(kQueueCapacity);
     lcm.subscribeFunction(p + "/RPC/REQUEST", &Impl::OnRequestThunk, this)->setQueueCapacity(1000);
     lcm.subscribeFunction(p + "/TRIAL", &Impl::OnTrialControlThunk, this)->setQueueCapacity(1000);
-
-    const sigset_t signals = HandledSignals();
-    signal_fd = signalfd(-1, &signals, SFD_NONBLOCK | SFD_CLOEXEC);
-    wake_fd = eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
-    if (signal_fd < 0 || wake_fd < 0)
-      throw std::runtime_error("cannot create signal or wake descriptors");
     worker = std::thread([this] { WorkerLoop(); });
   }
 
@@ -270,8 +285,19 @@ struct Daemon::Impl {
     }
     worker_wake.notify_all();
     if (worker.joinable()) worker.join();
-    if (signal_fd >= 0) close(signal_fd);
-    if (wake_fd >= 0) close(wake_fd);
+  }
+
+  // Queues a write for the writer thread; returns its ticket (0: an alert refused).
+  uint64_t Store(storage::Write write) {
+    const uint64_t ticket = writer->Submit(std::move(write));
+    last_ticket = std::max(last_ticket, ticket);
+    return ticket;
+  }
+
+  // Makes the loop's next poll return for DrainFinished (any thread).
+  void Wake() {
+    const uint64_t one = 1;
+    if (write(wake_fd.get(), &one, sizeof one) < 0) spdlog::error("cannot wake the loop");
   }
 
   void AddActuator(const storage::Actuator& info) {
@@ -332,12 +358,19 @@ struct Daemon::Impl {
   template <typename F>
   void Guarded(const std::string& channel, F&& handler) {
     ++counters.messages_received;
+    Contained("handler", "channel", channel, std::forward<F>(handler));
+  }
+
+  // Runs `run`; an exception it throws is logged as "<what> failed [<key>: <name>, error:
+  // ...]" and goes no further.
+  template <typename F>
+  static void Contained(const char* what, const char* key, const std::string& name, F&& run) {
     try {
-      handler();
+      run();
     } catch (const std::exception& e) {
-      spdlog::error("handler failed [channel: {}, error: {}]", channel, e.what());
+      spdlog::error("{} failed [{}: {}, error: {}]", what, key, name, e.what());
     } catch (...) {
-      spdlog::error("handler failed [channel: {}]", channel);
+      spdlog::error("{} failed [{}: {}]", what, key, name);
     }
   }
 
@@ -379,7 +412,7 @@ struct Daemon::Impl {
     }
     storage::Actuator info;
     info.id = message_id;
-    db.UpsertActuator(info);
+    Store(info);
     AddActuator(info);
     spdlog::info("new actuator [id: {}]", message_id);
     return &actuators.at(message_id);
@@ -503,9 +536,21 @@ struct Daemon::Impl {
     return static_cast<int64_t>(value);
   }
 
-  void StartTrial(ActuatorState* state, const std::string& protocol, int64_t utime,
-                  bool automatic) {
-    state->trial_id = db.StartTrial(state->info.id, protocol, utime);
+  // Starts a trial under the next id; returns the ticket of its write. Never waits for the
+  // disk, never throws for it: the writer stores the trial, or retries.
+  uint64_t StartTrial(ActuatorState* state, const std::string& protocol, int64_t utime,
+                      bool automatic) {
+    state->trial_id = next_trial_id++;
+    const uint64_t ticket =
+        Store(storage::TrialStart{state->trial_id, state->info.id, protocol, utime});
+    on_written.emplace(ticket, [id = state->trial_id,
+                                actuator = state->info.id](const storage::WriteOutcome& written) {
+      if (written.error.empty() && written.trial_id != id)
+        spdlog::warn(
+            "trial stored under another id: another program took its id [actuator: {}, "
+            "trial: {}, stored as: {}]",
+            actuator, id, written.trial_id);
+    });
     state->trial_start_utime = utime;
     state->trial_protocol = protocol;
     state->last_heard = loop_now;  // input silence counts from the start of a trial
@@ -513,19 +558,27 @@ struct Daemon::Impl {
     state->last_sample_utime = kNoTime;
     spdlog::info("trial started [actuator: {}, trial: {}, protocol: {}]", state->info.id,
                  state->trial_id, protocol);
+    return ticket;
   }
 
-  void StopTrial(ActuatorState* state, int64_t utime, storage::TrialState how) {
+  // Ends the trial recording; returns the ticket of its write (as StartTrial).
+  uint64_t StopTrial(ActuatorState* state, int64_t utime, storage::TrialState how) {
     // A trial ends at its last sample; one without samples ends where it started (message
     // time; 0 would read as "still recording").
     const int64_t end = state->last_sample_utime != kNoTime ? state->last_sample_utime
                         : utime > state->trial_start_utime  ? utime
                                                             : state->trial_start_utime;
-    db.EndTrial(state->trial_id, end, how);
+    const uint64_t ticket = Store(storage::TrialEnd{state->trial_id, end, how});
     spdlog::info("trial ended [actuator: {}, trial: {}, state: {}]", state->info.id,
                  state->trial_id, storage::TrialStateName(how));
     state->trial_id = 0;
     state->automatic_trial = false;
+    return ticket;
+  }
+
+  // Queues an alert for the writer; counts it when the writer's alert queue is full.
+  void StoreAlert(storage::AlertRecord record) {
+    if (Store(std::move(record)) == 0) ++counters.alerts_dropped;
   }
 
   void Raise(ActuatorState* state, const std::vector<Alert>& alerts) {
@@ -553,7 +606,7 @@ struct Daemon::Impl {
                                   out.magnitude_mm,
                                   out.threshold_mm,
                                   out.text};
-      db.StoreAlert(record);
+      StoreAlert(std::move(record));
       spdlog::log(alert.severity == 0 ? spdlog::level::info : spdlog::level::warn,
                   "alert [actuator: {}, kind: {}, magnitude_mm: {:.3f}] {}", out.actuator_id,
                   out.kind, out.magnitude_mm, out.text);
@@ -628,7 +681,7 @@ struct Daemon::Impl {
   void OnRequest(const lcm::ReceiveBuffer& rbuf) {
     flexid::rpc_request_t request;
     if (!Decode(rbuf, &request, wire::kRpcRequest)) return;
-    RpcContext context{request.request_id, request.client_id};
+    const RpcContext context{request.request_id, request.client_id};
     // Methods that change data need a valid signature, a fresh time and a new nonce; every
     // one is logged with its outcome. Read-only methods need none (an `auth` is ignored).
     const bool changes_data = ChangesData(request.method);
@@ -645,17 +698,64 @@ struct Daemon::Impl {
         return;
       }
     }
+    // A request that reads the file sees every write queued before it (a trial stopped
+    // on the bus, then "identify"), as when the loop wrote itself: it waits for them,
+    // unless storage is failing (then it is answered from what the file holds).
+    if (ReadsTheFile(request.method) && last_done_ticket < last_ticket &&
+        writer->last_error().empty()) {
+      on_written.emplace(last_ticket,
+                         [this, request](const storage::WriteOutcome&) { Answer(request); });
+      return;
+    }
+    Answer(request);
+  }
+
+  static bool ReadsTheFile(const std::string& method) {
+    return method != "status" && method != "actuators";
+  }
+
+  void Answer(const flexid::rpc_request_t& request) {
+    const RpcContext context{request.request_id, request.client_id};
+    const bool changes_data = ChangesData(request.method);
     RpcOutcome outcome = HandleRequest(request);
+    if (outcome.deferred && outcome.written != 0) return;  // see ReplyWhenWritten
     if (changes_data)
-      spdlog::info("request accepted [method: {}, client: {}, request: {}, args: {}] {}",
-                   ArgumentSummary(request.method), ArgumentSummary(request.client_id),
-                   ArgumentSummary(request.request_id), ArgumentSummary(request.args_json),
-                   outcome.deferred ? "running on the worker"
-                   : outcome.status == flexid::rpc_reply_t::kOk
-                       ? "done"
-                       : "failed: " + ArgumentSummary(outcome.error));
+      LogAccepted(request, outcome.deferred ? "running on the worker"
+                           : outcome.status == flexid::rpc_reply_t::kOk
+                               ? "done"
+                               : "failed: " + ArgumentSummary(outcome.error));
     if (outcome.deferred) return;  // identify: answered when the worker finishes
     Reply(context, outcome);
+  }
+
+  static void LogAccepted(const flexid::rpc_request_t& request, const std::string& how) {
+    spdlog::info("request accepted [method: {}, client: {}, request: {}, args: {}] {}",
+                 ArgumentSummary(request.method), ArgumentSummary(request.client_id),
+                 ArgumentSummary(request.request_id), ArgumentSummary(request.args_json), how);
+  }
+
+  // A request that changed data is answered once the writer has committed its last write
+  // (then "ok" means stored, and `then` runs first), or refused it (then the reply says
+  // why). While storage fails the reply waits: the write is retried. Returns the deferred
+  // outcome for HandleRequest to return.
+  RpcOutcome ReplyWhenWritten(uint64_t ticket, const flexid::rpc_request_t& request,
+                              RpcOutcome reply, std::function<void()> then = {}) {
+    on_written.emplace(ticket, [this, request, reply = std::move(reply),
+                                then = std::move(then)](const storage::WriteOutcome& written) {
+      RpcOutcome outcome = written.error.empty()
+                               ? reply
+                               : RpcOutcome{flexid::rpc_reply_t::kFailed, nullptr, written.error};
+      try {
+        if (written.error.empty() && then) then();
+      } catch (const std::exception& e) {
+        outcome = {flexid::rpc_reply_t::kFailed, nullptr, e.what()};
+      }
+      LogAccepted(request, outcome.status == flexid::rpc_reply_t::kOk
+                               ? "done"
+                               : "failed: " + ArgumentSummary(outcome.error));
+      Reply({request.request_id, request.client_id}, outcome);
+    });
+    return {flexid::rpc_reply_t::kOk, nullptr, "", true, ticket};
   }
 
   void Reply(const RpcContext& context, const RpcOutcome& outcome) {
@@ -704,8 +804,7 @@ struct Daemon::Impl {
         finished.push_back(std::move(result));
       }
       identifying = false;
-      const uint64_t one = 1;
-      if (write(wake_fd, &one, sizeof one) < 0) spdlog::error("cannot wake the loop");
+      Wake();
     }
   }
 
@@ -718,36 +817,84 @@ struct Daemon::Impl {
     return true;
   }
 
+  // Takes what the worker and the writer have finished. Each result is handled on its own:
+  // one that fails is logged (and its request answered) and the others go on.
   void DrainFinished() {
     uint64_t count = 0;
-    if (read(wake_fd, &count, sizeof count) < 0 && errno != EAGAIN)
+    if (read(wake_fd.get(), &count, sizeof count) < 0 && errno != EAGAIN)
       spdlog::error("wake read failed");
+    for (const storage::WriteOutcome& outcome : writer->TakeOutcomes()) {
+      try {
+        OnWritten(outcome);
+      } catch (const std::exception& e) {
+        spdlog::error("write outcome not handled [error: {}]", e.what());
+      }
+    }
     std::deque<IdentifyResult> done;
     {
       std::lock_guard<std::mutex> lock(worker_mutex);
       done.swap(finished);
     }
     for (IdentifyResult& result : done) {
-      if (result.diagnosis.is_object()) {
-        ReportDiagnosis(result);
-        continue;
+      try {
+        OnWorkerResult(result);
+      } catch (const std::exception& e) {
+        spdlog::error("worker result failed [actuator: {}, error: {}]", result.actuator_id,
+                      e.what());
+        Reply(result.request, {flexid::rpc_reply_t::kFailed, nullptr, e.what()});
       }
-      if (!result.model) {
-        spdlog::error("{} failed [actuator: {}, error: {}]",
-                      !result.trial_ids.empty() ? "diagnosis" : "identification",
-                      result.actuator_id, result.error);
-        Reply(result.request, {flexid::rpc_reply_t::kFailed, nullptr, result.error, false});
-        continue;
-      }
-      auto it = actuators.find(result.actuator_id);
-      if (it != actuators.end()) {
-        LoadModel(&it->second, *result.model);  // hot swap
-        AnnounceModel(&it->second, *result.model);
-      }
-      nlohmann::json out = storage::ModelSummaryJson(*result.model);
-      out["model"] = nlohmann::json::parse(result.model->model_json);
-      Reply(result.request, {flexid::rpc_reply_t::kOk, out, "", false});
     }
+  }
+
+  void OnWritten(const storage::WriteOutcome& outcome) {
+    last_done_ticket = std::max(last_done_ticket, outcome.ticket);
+    if (!outcome.error.empty())
+      spdlog::error("write refused by the database, not retried [error: {}]", outcome.error);
+    auto [first, last] = on_written.equal_range(outcome.ticket);
+    std::vector<std::function<void(const storage::WriteOutcome&)>> then;
+    for (auto it = first; it != last; ++it) then.push_back(std::move(it->second));
+    on_written.erase(first, last);
+    for (const auto& run : then) run(outcome);
+  }
+
+  void OnWorkerResult(IdentifyResult& result) {
+    if (result.diagnosis.is_object()) {
+      ReportDiagnosis(result);
+      return;
+    }
+    if (!result.model) {
+      spdlog::error("{} failed [actuator: {}, error: {}]",
+                    !result.trial_ids.empty() ? "diagnosis" : "identification", result.actuator_id,
+                    result.error);
+      Reply(result.request, {flexid::rpc_reply_t::kFailed, nullptr, result.error});
+      return;
+    }
+    // Stored by the writer as the next version; then swapped in and answered.
+    const uint64_t ticket = Store(std::move(*result.model));
+    on_written.emplace(ticket, [this, request = result.request, actuator_id = result.actuator_id](
+                                   const storage::WriteOutcome& written) {
+      if (!written.model) {
+        spdlog::error("identification failed [actuator: {}, error: cannot store the model: {}]",
+                      actuator_id, written.error);
+        Reply(request,
+              {flexid::rpc_reply_t::kFailed, nullptr, "cannot store the model: " + written.error});
+        return;
+      }
+      try {
+        auto it = actuators.find(actuator_id);
+        if (it != actuators.end()) {
+          LoadModel(&it->second, *written.model);  // hot swap
+          AnnounceModel(&it->second, *written.model);
+        }
+        nlohmann::json out = storage::ModelSummaryJson(*written.model);
+        out["model"] = nlohmann::json::parse(written.model->model_json);
+        Reply(request, {flexid::rpc_reply_t::kOk, out, ""});
+      } catch (const std::exception& e) {
+        spdlog::error("model {} stored but not put to use [actuator: {}, error: {}]",
+                      written.model->version, actuator_id, e.what());
+        Reply(request, {flexid::rpc_reply_t::kFailed, nullptr, e.what()});
+      }
+    });
   }
 
   // ---------------------------------------------------------------------------------------
@@ -766,8 +913,8 @@ struct Daemon::Impl {
     return latest != kNoTime ? latest : bus::WallClockUtime();
   }
 
-  // Publishes, counts and logs a health alert, and stores it unless storage is failing
-  // (the loop must not wait on a locked database): then it is stored on recovery.
+  // Publishes, counts and logs a health alert, and queues it for the writer (stored once
+  // the database takes writes).
   void RaiseHealth(const std::string& actuator_id, const std::string& kind, int severity,
                    int64_t start_utime, int64_t utime, const std::string& text) {
     flexid::alert_t out;
@@ -786,22 +933,7 @@ struct Daemon::Impl {
                 : severity == 1 ? spdlog::level::warn
                                 : spdlog::level::err,
                 "{} [kind: {}, actuator: {}]", text, kind, actuator_id);
-    if (unstored_alerts.size() < 1000)
-      unstored_alerts.push_back(
-          {0, actuator_id, kind, severity, utime, start_utime, utime, 0.0, 0.0, text});
-    StoreHealthAlerts();
-  }
-
-  void StoreHealthAlerts() {
-    while (!storage_failing && !unstored_alerts.empty()) {
-      try {
-        db.StoreAlert(unstored_alerts.front());
-      } catch (const std::exception& e) {
-        spdlog::warn("alert not stored yet [error: {}]", e.what());
-        return;
-      }
-      unstored_alerts.pop_front();
-    }
+    StoreAlert({0, actuator_id, kind, severity, utime, start_utime, utime, 0.0, 0.0, text});
   }
 
   // Records that a message of the actuator arrived; says so if it had fallen silent.
@@ -892,6 +1024,12 @@ struct Daemon::Impl {
   // recovery said with what it cost.
   void CheckStorage() {
     const std::string error = writer->last_error();
+    if (const int64_t alert_drops = counters.alerts_dropped.load(std::memory_order_relaxed);
+        alert_drops > alert_drops_reported) {
+      spdlog::error("alerts not stored: the writer holds as many as it may [dropped: {}]",
+                    alert_drops - alert_drops_reported);
+      alert_drops_reported = alert_drops;
+    }
     const int64_t dropped = counters.dropped_queue_full.load(std::memory_order_relaxed);
     const int64_t utime = LatestUtime();
     if (!error.empty() && !storage_failing) {
@@ -899,8 +1037,9 @@ struct Daemon::Impl {
       storage_failing_since = loop_now;
       drops_when_failing = drops_reported = dropped;
       RaiseHealth("", "storage_failing", 2, utime, utime,
-                  fmt::format("storage failing: {}: {}; samples are held in memory (at most {}) "
-                              "and retried, and none counts as stored until it is committed",
+                  fmt::format("storage failing: {}: {}; samples (at most {}), trials, alerts and "
+                              "models are held in memory and retried, and none counts as stored "
+                              "until it is committed",
                               StorageProblem(error), error, config.health.writer_queue_samples));
     } else if (storage_failing && !error.empty() && dropped > drops_reported) {
       if (drops_reported == drops_when_failing)
@@ -946,22 +1085,26 @@ struct Daemon::Impl {
       return;
     }
     database_identity = IdentityOf(config.database);
+    // Ids go on from the highest of both files: a replaced file may hold trials already.
+    next_trial_id = std::max(next_trial_id, db.LastTrialId() + 1);
     std::map<int64_t, int64_t> trial_ids;
     std::string continued;
     for (auto& [id, state] : actuators) {
-      try {
-        db.UpsertActuator(state.info);
-        if (state.trial_id == 0) continue;
-        const int64_t old_trial = state.trial_id;
-        state.trial_id = db.StartTrial(id, state.trial_protocol, state.trial_start_utime);
-        trial_ids[old_trial] = state.trial_id;
-        continued +=
-            fmt::format("{}{} -> {}", continued.empty() ? "" : ", ", old_trial, state.trial_id);
-      } catch (const std::exception& e) {
-        spdlog::error("cannot set up {} in the new database [error: {}]", id, e.what());
-      }
+      if (state.trial_id == 0) continue;
+      const int64_t old_trial = state.trial_id;
+      state.trial_id = next_trial_id++;
+      trial_ids[old_trial] = state.trial_id;
+      continued +=
+          fmt::format("{}{} -> {}", continued.empty() ? "" : ", ", old_trial, state.trial_id);
     }
+    // Then, in the writer's order: the new file, the actuators, the trials that go on.
     writer->Reopen(trial_ids);
+    for (auto& [id, state] : actuators) {
+      Store(state.info);
+      if (state.trial_id != 0)
+        Store(
+            storage::TrialStart{state.trial_id, id, state.trial_protocol, state.trial_start_utime});
+    }
     const int64_t utime = LatestUtime();
     RaiseHealth("", "database_replaced", 2, utime, utime,
                 fmt::format("database file {} was {} under the daemon: a new database is open "
@@ -1041,6 +1184,7 @@ struct Daemon::Impl {
     c.dropped_queue_full = counters.dropped_queue_full.load(std::memory_order_relaxed);
     c.predictions_published = counters.predictions_published.load(std::memory_order_relaxed);
     c.alerts_raised = counters.alerts_raised.load(std::memory_order_relaxed);
+    c.alerts_dropped = counters.alerts_dropped.load(std::memory_order_relaxed);
     c.refused_unauthorized = counters.refused_unauthorized.load(std::memory_order_relaxed);
     c.samples_stored = writer->stored();
     return c;
@@ -1048,7 +1192,7 @@ struct Daemon::Impl {
 
   void HandleSignals() {
     signalfd_siginfo info;
-    while (read(signal_fd, &info, sizeof info) == static_cast<ssize_t>(sizeof info)) {
+    while (read(signal_fd.get(), &info, sizeof info) == static_cast<ssize_t>(sizeof info)) {
       if (info.ssi_signo == SIGHUP) {
         Reload();
       } else {
@@ -1080,8 +1224,11 @@ struct Daemon::Impl {
     for (const std::string& line : Describe(config)) spdlog::info("config {}", line);
   }
 
+  // One pass of the loop. No exception leaves it: each part that fails is logged and the
+  // loop goes on (handlers already catch at LCM's edge).
   void RunOnce(int timeout_ms) {
-    pollfd fds[3] = {{lcm.getFileno(), POLLIN, 0}, {signal_fd, POLLIN, 0}, {wake_fd, POLLIN, 0}};
+    pollfd fds[3] = {
+        {lcm.getFileno(), POLLIN, 0}, {signal_fd.get(), POLLIN, 0}, {wake_fd.get(), POLLIN, 0}};
     const auto now = std::chrono::steady_clock::now();
     const int until_status = static_cast<int>(std::max<int64_t>(
         0, std::chrono::duration_cast<std::chrono::milliseconds>(next_status - now).count()));
@@ -1090,28 +1237,36 @@ struct Daemon::Impl {
     if (ready > 0) {
       // Drain what LCM has, bounded so that signals and the timer are served.
       if (fds[0].revents & POLLIN)
-        for (int i = 0; i < 10000 && lcm.handleTimeout(0) > 0; ++i) {
-        }
-      if (fds[1].revents & POLLIN) HandleSignals();
-      if (fds[2].revents & POLLIN) DrainFinished();
+        LoopPart("bus", [this] {
+          for (int i = 0; i < 10000 && lcm.handleTimeout(0) > 0; ++i) {
+          }
+        });
+      if (fds[1].revents & POLLIN) LoopPart("signals", [this] { HandleSignals(); });
+      if (fds[2].revents & POLLIN) LoopPart("results", [this] { DrainFinished(); });
     }
     if (std::chrono::steady_clock::now() >= next_status) {
       loop_now = std::chrono::steady_clock::now();
-      CheckHealth();
-      PublishStatus();
+      LoopPart("health", [this] { CheckHealth(); });
+      LoopPart("status", [this] { PublishStatus(); });
       next_status += std::chrono::seconds(1);
       if (next_status < std::chrono::steady_clock::now())
         next_status = std::chrono::steady_clock::now() + std::chrono::seconds(1);
     }
   }
 
+  template <typename F>
+  static void LoopPart(const char* part, F&& run) {
+    Contained("loop pass", "part", part, std::forward<F>(run));
+  }
+
   void Shutdown() {
-    if (!writer->Flush())
-      spdlog::error("samples left unwritten at shutdown [error: {}]", writer->last_error());
     for (auto& [id, state] : actuators)
       if (state.trial_id != 0)
         StopTrial(&state, state.last_sample_utime != kNoTime ? state.last_sample_utime : 0,
                   storage::TrialState::kInterrupted);
+    if (!writer->Flush())
+      spdlog::error("samples and writes left unwritten at shutdown [error: {}]",
+                    writer->last_error());
     const Counters c = Snapshot();
     spdlog::info("stopped [received: {}, accepted: {}, stored: {}, dropped: {}]",
                  c.messages_received, c.samples_accepted, c.samples_stored, c.dropped_queue_full);
@@ -1140,7 +1295,8 @@ model::Recording RecordingOfTrial(const std::vector<storage::Sample>& samples, i
 
 // Diagnosis of stored trials of one actuator (one diagnosis from all of them, oldest
 // first) against the actuator's active model (or, without one or when asked, against the
-// seed's structure identified on the trials), on the worker thread with its own connection.
+// seed's structure identified on the trials), on the worker thread with its own connection
+// (reads only).
 IdentifyResult RunDiagnosis(const std::string& database, const std::string& actuator_id,
                             const std::vector<int64_t>& trial_ids, bool use_model,
                             int64_t max_samples, RpcContext request) {
@@ -1187,7 +1343,8 @@ IdentifyResult RunDiagnosis(const std::string& database, const std::string& actu
 }
 
 // Identification of one actuator on stored trials, on the worker thread with its own
-// connection: samples -> recordings -> T-S model -> a new active model version.
+// connection (reads only): samples -> recordings -> T-S model -> the record of a new active
+// model version, which the loop hands to the writer.
 IdentifyResult RunIdentification(const std::string& database, const std::string& actuator_id,
                                  std::vector<int64_t> trial_ids, const IdentificationConfig& config,
                                  RpcContext request) {
@@ -1244,7 +1401,7 @@ IdentifyResult RunIdentification(const std::string& database, const std::string&
     record.samples_hash = storage::HashSamples(all);
     record.flexid_version = kVersion;
     record.active = true;
-    result.model = db.StoreModel(record);
+    result.model = std::move(record);  // stored by the writer, on the loop's word
   } catch (const std::exception& e) {
     result.error = e.what();
   }
@@ -1286,6 +1443,8 @@ RpcOutcome Daemon::Impl::HandleRequest(const flexid::rpc_request_t& request) {
                {"dropped_queue_full", c.dropped_queue_full},
                {"predictions_published", c.predictions_published},
                {"alerts_raised", c.alerts_raised},
+               {"alerts_dropped", c.alerts_dropped},
+               {"writes_queued", writer->writes_queued()},
                {"requests_refused_unauthorized", c.refused_unauthorized},
                {"identification_running", identifying.load()}},
               "",
@@ -1348,11 +1507,15 @@ RpcOutcome Daemon::Impl::HandleRequest(const flexid::rpc_request_t& request) {
       ActuatorState* state = actuator_of(true);
       const auto version =
           static_cast<int32_t>(RequiredIntegerArgument(args, "version", 1, INT32_MAX));
-      if (!db.FindModel(state->info.id, version))
-        return {Reply::kNotFound, nullptr, "no such model version", false};
-      db.ActivateModel(state->info.id, version);
-      LoadModel(state, *db.FindModel(state->info.id, version));
-      return {Reply::kOk, {{"actuator", state->info.id}, {"version", version}}, "", false};
+      const auto record = db.FindModel(state->info.id, version);
+      if (!record) return {Reply::kNotFound, nullptr, "no such model version", false};
+      // Swapped in once the writer has made it the active one.
+      return ReplyWhenWritten(
+          Store(storage::ModelActivation{state->info.id, version}), request,
+          {Reply::kOk, {{"actuator", state->info.id}, {"version", version}}, ""},
+          [this, actuator = state->info.id, record = *record] {
+            LoadModel(&actuators.at(actuator), record);
+          });
     }
     if (method == "alerts") {
       const ActuatorState* state = actuator_of(false);
@@ -1371,17 +1534,21 @@ RpcOutcome Daemon::Impl::HandleRequest(const flexid::rpc_request_t& request) {
           state->voltage_utime != kNoTime ? state->voltage_utime : bus::WallClockUtime();
       if (method == "trial_start") {
         const std::string fallback = "manual";
+        const std::string protocol = StringArgument(args, "protocol", &fallback);
         if (state->trial_id != 0) StopTrial(state, now, storage::TrialState::kComplete);
-        StartTrial(state, StringArgument(args, "protocol", &fallback), now, false);
-        return {Reply::kOk, {{"actuator", state->info.id}, {"trial", state->trial_id}}, "", false};
+        const uint64_t ticket = StartTrial(state, protocol, now, false);
+        return ReplyWhenWritten(
+            ticket, request,
+            {Reply::kOk, {{"actuator", state->info.id}, {"trial", state->trial_id}}, ""});
       }
       if (state->trial_id == 0)
         return {Reply::kNotFound, nullptr, state->info.id + " has no trial recording", false};
-      // No flush here: it would block the loop; the trial's samples are committed within
-      // one commit interval, under its id.
+      // Answered once the end is written; the trial's samples are committed within one
+      // commit interval, under its id (waiting for them would block the loop).
       const int64_t id = state->trial_id;
-      StopTrial(state, now, storage::TrialState::kComplete);
-      return {Reply::kOk, {{"actuator", state->info.id}, {"trial", id}}, "", false};
+      const uint64_t ticket = StopTrial(state, now, storage::TrialState::kComplete);
+      return ReplyWhenWritten(ticket, request,
+                              {Reply::kOk, {{"actuator", state->info.id}, {"trial", id}}, ""});
     }
     if (method == "identify") {
       ActuatorState* state = actuator_of(true);

@@ -3,20 +3,29 @@
 // on disk or on identification:
 //
 //   FLEXID/<id>/VOLTAGE, /DEFLECTION --> validate, count --> pair each deflection sample
-//        with the voltage in force --> SampleWriter (bounded queue, own thread, commits at
+//        with the voltage in force --> SampleWriter (bounded queues, own thread, commits at
 //        least every commit_interval) --> SQLite
 //                                     --> T-S prediction (StreamingSimulator, message time)
 //                                          --> FLEXID/<id>/PREDICTION
-//                                          --> ResidualMonitor --> FLEXID/ALERT (+ SQLite)
+//                                          --> ResidualMonitor --> FLEXID/ALERT (+ writer)
 //   FLEXID/RPC/REQUEST --> signature check for methods that change data (message_auth.h)
-//        --> methods (rpc.h); "identify" runs on the identification worker,
-//        stores a new model version, hot-swaps the predictor and then replies.
+//        --> methods (rpc.h); "identify" runs on the identification worker, the writer
+//        stores a new model version, then the loop hot-swaps the predictor and replies.
 //   FLEXID/STATUS <-- counters, once a second.
 //
 // The daemon works in message time (utime), never wall-clock time (one exception: the
 // replay window of signed requests, lcmtypes/message_auth.h), so an accelerated rig
-// or a replayed log behaves like a real-time run. Trial starts, stops and alerts are rare
-// and written on the loop's own connection (a few hundred microseconds in WAL mode).
+// or a replayed log behaves like a real-time run.
+//
+// One thread writes: the SampleWriter's. The loop hands it samples, trial starts and ends
+// (trial ids are handed out on the loop, from the highest in the file at start-up),
+// actuators, alerts, models and model activations, and never waits for the disk: a
+// locked or full database delays the rows, not predictions. A write that fails stays
+// queued and is retried, and the failure is a "storage_failing" health alert. A request
+// that changes data is answered once its write is committed; one that reads the file
+// first waits for the writes queued before it (unless storage is failing). The loop's own
+// connection only reads, except for marking an earlier run's trials interrupted at
+// start-up. No exception leaves a pass of the loop (RunOnce).
 #pragma once
 
 #include <cstdint>
@@ -37,6 +46,9 @@ struct Counters {
   int64_t dropped_queue_full = 0;
   int64_t predictions_published = 0;
   int64_t alerts_raised = 0;
+  // Alerts published but not stored: the writer held as many as it may (storage failing
+  // for long; SampleWriterOptions::alert_capacity).
+  int64_t alerts_dropped = 0;
   int64_t samples_stored = 0;  // acknowledged: committed
   // RPC requests and trial control that would change data, refused as unsigned, badly
   // signed, stale or replayed (README "Security").
@@ -56,7 +68,7 @@ class Daemon {
   // Runs until Stop(), SIGTERM or SIGINT (SIGHUP reloads the configuration file and
   // reopens the log). Flushes every queued sample before returning. Returns 0.
   int Run();
-  // One pass of the loop: handles whatever is ready within timeout_ms.
+  // One pass of the loop: handles whatever is ready within timeout_ms. Never throws.
   void RunOnce(int timeout_ms);
   void Stop();
 

@@ -28,7 +28,8 @@ struct RpcOutcome {
   int8_t status = 0;  // rpc_reply_t::kOk, ...
   nlohmann::json result;
   std::string error;      // one line when status != kOk
-  bool deferred = false;  // the reply comes later (identify)
+  bool deferred = false;  // the reply comes later (identify, or once a write is done)
+  uint64_t written = 0;   // deferred until the write with this ticket is done (0: not)
 };
 
 // Typed access to a request's JSON arguments; throws ArgumentError naming the argument.

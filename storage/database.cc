@@ -50,11 +50,29 @@ namespace {
 constexpr int64_t kApplicationId = 0x464C5844;
 constexpr int kBusyTimeout_ms = 5000;
 
+// Whether a failure with that result code may pass: the database was busy or locked, or
+// the file system full, read-only or failing (StorageError::transient).
+bool IsTransient(int result_code) {
+  switch (result_code & 0xFF) {  // the primary result code
+    case SQLITE_BUSY:
+    case SQLITE_LOCKED:
+    case SQLITE_FULL:
+    case SQLITE_READONLY:
+    case SQLITE_IOERR:
+    case SQLITE_CANTOPEN:
+    case SQLITE_NOMEM:
+    case SQLITE_PROTOCOL:
+      return true;
+    default:
+      return false;
+  }
+}
+
 [[noreturn]] void Throw(sqlite3* db, const std::string& path, std::string_view what) {
   std::string message = path + ": " + std::string(what);
   if (db == nullptr) {
     message += ": out of memory";
-    throw StorageError(message);
+    throw StorageError(message, /*transient=*/true);
   }
   message += ": ";
   message += sqlite3_errmsg(db);
@@ -70,7 +88,7 @@ constexpr int kBusyTimeout_ms = 5000;
     default:
       break;
   }
-  throw StorageError(message);
+  throw StorageError(message, IsTransient(sqlite3_errcode(db)));
 }
 
 // A prepared statement (RAII). Bind indexes are 1-based, column indexes 0-based, as in
@@ -643,20 +661,41 @@ std::optional<Actuator> Database::FindActuator(const std::string& id) {
 
 // --- trials --------------------------------------------------------------------------
 
-int64_t Database::StartTrial(const std::string& actuator_id, const std::string& protocol,
-                             int64_t start_utime) {
-  sqlite3* db = Handle();
-  Transaction transaction(db, path_, Transaction::Kind::kWrite);
-  EnsureActuator(db, path_, actuator_id);
-  Statement(db, path_, "INSERT INTO trials (actuator_id, protocol, start_utime) VALUES (?, ?, ?)")
-      .Bind(1, actuator_id)
-      .Bind(2, protocol)
-      .Bind(3, start_utime)
-      .Run();
+namespace {
+
+// Inserts a trial "recording" (with that id, or the next free one when trial_id is 0) and
+// its actuator if unknown; returns the id.
+int64_t InsertTrialRow(sqlite3* db, const std::string& path, int64_t trial_id,
+                       const std::string& actuator_id, const std::string& protocol,
+                       int64_t start_utime) {
+  Transaction transaction(db, path, Transaction::Kind::kWrite);
+  EnsureActuator(db, path, actuator_id);
+  Statement insert(db, path,
+                   "INSERT INTO trials (id, actuator_id, protocol, start_utime) "
+                   "VALUES (?, ?, ?, ?)");
+  if (trial_id != 0) insert.Bind(1, trial_id);  // unbound: NULL, SQLite picks the id
+  insert.Bind(2, actuator_id).Bind(3, protocol).Bind(4, start_utime).Run();
   const int64_t id = sqlite3_last_insert_rowid(db);
   transaction.Commit();
   return id;
 }
+
+}  // namespace
+
+int64_t Database::StartTrial(const std::string& actuator_id, const std::string& protocol,
+                             int64_t start_utime) {
+  return InsertTrialRow(Handle(), path_, 0, actuator_id, protocol, start_utime);
+}
+
+void Database::InsertTrial(int64_t trial_id, const std::string& actuator_id,
+                           const std::string& protocol, int64_t start_utime) {
+  if (trial_id <= 0)
+    throw StorageError(path_ + ": cannot start trial " + std::to_string(trial_id) +
+                       ": trial ids are positive");
+  InsertTrialRow(Handle(), path_, trial_id, actuator_id, protocol, start_utime);
+}
+
+int64_t Database::LastTrialId() { return QueryInt(Handle(), path_, "SELECT max(id) FROM trials"); }
 
 void Database::EndTrial(int64_t trial_id, int64_t end_utime, TrialState state) {
   sqlite3* db = Handle();

@@ -28,7 +28,12 @@ struct sqlite3;
 namespace flexid::storage {
 
 struct StorageError : std::runtime_error {
-  using runtime_error::runtime_error;
+  explicit StorageError(const std::string& what, bool may_pass = false)
+      : runtime_error(what), transient(may_pass) {}
+  // True when the same write may succeed later: the database was busy or locked, full,
+  // read-only or failing I/O. False when the write itself was refused (e.g. a trial that
+  // does not exist, an id already taken): retrying it cannot help.
+  bool transient = false;
 };
 
 // A physical actuator (the seed paper's printed strip). Defaults are the seed's geometry
@@ -132,6 +137,12 @@ class Database {
   // the defaults of Actuator if it is unknown.
   int64_t StartTrial(const std::string& actuator_id, const std::string& protocol,
                      int64_t start_utime);
+  // The same with the id given (flexidd hands out trial ids on its loop: SampleWriter).
+  // Throws if a trial with that id exists.
+  void InsertTrial(int64_t trial_id, const std::string& actuator_id, const std::string& protocol,
+                   int64_t start_utime);
+  // The highest trial id stored (0: none).
+  int64_t LastTrialId();
   // Sets the end time and the final state (kComplete or kInterrupted). Throws if the
   // trial does not exist or state is kRecording.
   void EndTrial(int64_t trial_id, int64_t end_utime, TrialState state);

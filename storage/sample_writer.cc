@@ -8,7 +8,9 @@
 
 #include <algorithm>
 #include <exception>
+#include <iterator>
 #include <stdexcept>
+#include <type_traits>
 #include <utility>
 
 namespace flexid::storage {
@@ -25,6 +27,8 @@ bool SampleWriterOptions::IsValid(std::string* error) const {
     problem = "commit_interval must be positive";
   else if (queue_capacity == 0)
     problem = "queue_capacity must be positive";
+  else if (alert_capacity == 0)
+    problem = "alert_capacity must be positive";
   if (error) *error = problem;
   return problem.empty();
 }
@@ -81,7 +85,10 @@ bool SampleWriter::Enqueue(int64_t trial_id, const Sample& sample) {
 bool SampleWriter::Flush() {
   std::unique_lock lock(mutex_);
   const int64_t target = enqueued_.load();
-  auto done = [&] { return stored_.load() + rejected_.load() >= target; };
+  const uint64_t writes_target = next_ticket_ - 1;
+  auto done = [&] {
+    return stored_.load() + rejected_.load() >= target && writes_done_ >= writes_target;
+  };
   if (done()) return true;
   const uint64_t attempts_before = attempts_;
   flush_requested_ = true;
@@ -92,19 +99,48 @@ bool SampleWriter::Flush() {
   return done();
 }
 
+uint64_t SampleWriter::Submit(Write write) {
+  std::lock_guard lock(mutex_);
+  const bool alert = std::holds_alternative<AlertRecord>(write);
+  if (alert && alerts_queued_ >= options_.alert_capacity) return 0;
+  alerts_queued_ += alert;
+  const uint64_t ticket = next_ticket_++;
+  incoming_writes_.push_back({ticket, std::move(write)});
+  return ticket;
+}
+
+std::vector<WriteOutcome> SampleWriter::TakeOutcomes() {
+  std::lock_guard lock(mutex_);
+  std::vector<WriteOutcome> out;
+  out.swap(outcomes_);
+  return out;
+}
+
 namespace {
 
-void Translate(std::vector<TrialSample>* samples, const std::map<int64_t, int64_t>& trial_ids) {
-  for (TrialSample& s : *samples)
-    if (const auto it = trial_ids.find(s.trial_id); it != trial_ids.end()) s.trial_id = it->second;
+int64_t Translated(int64_t trial_id, const std::map<int64_t, int64_t>& trial_ids) {
+  const auto it = trial_ids.find(trial_id);
+  return it != trial_ids.end() ? it->second : trial_id;
 }
 
 }  // namespace
 
+void SampleWriter::Translate(std::vector<TrialSample>* samples, std::vector<Queued>* writes,
+                             const std::map<int64_t, int64_t>& trial_ids) {
+  for (TrialSample& s : *samples) s.trial_id = Translated(s.trial_id, trial_ids);
+  if (!writes) return;
+  for (Queued& q : *writes) {
+    if (auto* start = std::get_if<TrialStart>(&q.write))
+      start->trial_id = Translated(start->trial_id, trial_ids);
+    else if (auto* end = std::get_if<TrialEnd>(&q.write))
+      end->trial_id = Translated(end->trial_id, trial_ids);
+  }
+}
+
 void SampleWriter::Reopen(const std::map<int64_t, int64_t>& trial_ids) {
   {
     std::lock_guard lock(mutex_);
-    Translate(&incoming_, trial_ids);
+    Translate(&incoming_, &incoming_writes_, trial_ids);
     if (!reopen_) {
       reopen_ = trial_ids;
     } else {  // a second reopen before the first was done: compose the translations
@@ -122,9 +158,81 @@ size_t SampleWriter::queue_depth() const {
   return incoming_.size() + batch_.size();
 }
 
+size_t SampleWriter::writes_queued() const {
+  std::lock_guard lock(mutex_);
+  return incoming_writes_.size() + writes_.size();
+}
+
 std::string SampleWriter::last_error() const {
   std::lock_guard lock(mutex_);
   return last_error_;
+}
+
+std::string SampleWriter::Held() const {
+  std::string held = std::to_string(batch_.size() + incoming_.size()) + " samples";
+  if (const size_t writes = writes_.size() + incoming_writes_.size(); writes > 0)
+    held += " and " + std::to_string(writes) + " other writes";
+  return held;
+}
+
+WriteOutcome SampleWriter::CommitWrite(Queued& queued) {
+  WriteOutcome outcome;
+  outcome.ticket = queued.ticket;
+  Database& db = database_;
+  std::visit(
+      [&](auto& write) {
+        using T = std::decay_t<decltype(write)>;
+        if constexpr (std::is_same_v<T, TrialStart>) {
+          outcome.trial_id = write.trial_id;
+          try {
+            db.InsertTrial(write.trial_id, write.actuator_id, write.protocol, write.start_utime);
+          } catch (const StorageError& e) {
+            if (e.transient) throw;
+            const std::optional<Trial> there = db.FindTrial(write.trial_id);
+            if (!there) throw;
+            // Written already (a start submitted again after Reopen), or the id taken by
+            // another program writing the file: the trial moves to the next free id.
+            if (there->actuator_id == write.actuator_id && there->protocol == write.protocol &&
+                there->start_utime == write.start_utime)
+              return;
+            outcome.trial_id = db.LastTrialId() + 1;
+            db.InsertTrial(outcome.trial_id, write.actuator_id, write.protocol, write.start_utime);
+            moved_trials_[write.trial_id] = outcome.trial_id;
+          }
+        } else if constexpr (std::is_same_v<T, TrialEnd>) {
+          db.EndTrial(Translated(write.trial_id, moved_trials_), write.end_utime, write.state);
+        } else if constexpr (std::is_same_v<T, Actuator>) {
+          db.UpsertActuator(write);
+        } else if constexpr (std::is_same_v<T, AlertRecord>) {
+          db.StoreAlert(write);
+        } else if constexpr (std::is_same_v<T, ModelRecord>) {
+          outcome.model = db.StoreModel(write);
+        } else {
+          static_assert(std::is_same_v<T, ModelActivation>);
+          db.ActivateModel(write.actuator_id, write.version);
+        }
+      },
+      queued.write);
+  return outcome;
+}
+
+size_t SampleWriter::CommitWrites(std::vector<WriteOutcome>* outcomes, std::string* error) {
+  size_t done = 0;
+  for (; done < writes_.size(); ++done) {
+    try {
+      outcomes->push_back(CommitWrite(writes_[done]));
+    } catch (const StorageError& e) {
+      if (e.transient) {
+        *error = e.what();
+        break;
+      }
+      outcomes->push_back({writes_[done].ticket, e.what(), std::nullopt, 0});
+    } catch (const std::exception& e) {  // e.g. out of memory: may pass
+      *error = e.what();
+      break;
+    }
+  }
+  return done;
 }
 
 void SampleWriter::Run() noexcept {
@@ -150,15 +258,13 @@ void SampleWriter::Run() noexcept {
       lock.lock();
       if (fresh) {
         database_ = std::move(*fresh);
-        Translate(&batch_, *reopen_);
+        Translate(&batch_, &writes_, *reopen_);
         reopen_.reset();
       } else {
         ++attempts_;
         last_attempt_failed_ = true;
-        last_error_ = "cannot reopen the database: " + error + " (" +
-                      std::to_string(batch_.size() + incoming_.size()) +
-                      " samples kept queued; retrying every " + std::to_string(interval.count()) +
-                      " ms)";
+        last_error_ = "cannot reopen the database: " + error + " (" + Held() +
+                      " kept queued; retrying every " + std::to_string(interval.count()) + " ms)";
         flushed_.notify_all();
         deadline = std::max(deadline + interval, std::chrono::steady_clock::now());
         if (stopping) {
@@ -170,53 +276,69 @@ void SampleWriter::Run() noexcept {
         continue;
       }
     }
-    // Take what has queued. After a failed commit batch_ still holds its samples: the new
-    // ones go behind them, keeping the order (both fit: see the constructor).
+    // Take what has queued. After a failed commit batch_ and writes_ still hold theirs: the
+    // new ones go behind them, keeping the order (samples fit: see the constructor).
     if (batch_.empty()) {
       batch_.swap(incoming_);
     } else {
       batch_.insert(batch_.end(), incoming_.begin(), incoming_.end());
       incoming_.clear();
     }
-    if (batch_.empty()) {
+    std::move(incoming_writes_.begin(), incoming_writes_.end(), std::back_inserter(writes_));
+    incoming_writes_.clear();
+    if (batch_.empty() && writes_.empty()) {
       if (stopping) break;
       deadline = std::max(deadline + interval, std::chrono::steady_clock::now());
       continue;
     }
 
-    // Commit without the lock: Enqueue goes on filling incoming_ meanwhile. batch_ is not
-    // modified by anyone while the lock is released.
+    // Commit without the lock: Enqueue and Submit go on filling incoming_ and
+    // incoming_writes_ meanwhile. batch_ and writes_ are modified by nobody else.
     lock.unlock();
-    AppendResult result;
+    std::vector<WriteOutcome> outcomes;
     std::string error;
-    try {
-      result = database_.AppendSamples(std::span<const TrialSample>(batch_));
-    } catch (const std::exception& e) {
-      error = e.what();
-    } catch (...) {
-      error = "unknown error";
+    const size_t writes_done = CommitWrites(&outcomes, &error);
+    AppendResult result;
+    // Samples only behind every write before them: a trial's row comes first.
+    if (error.empty() && !batch_.empty()) {
+      if (!moved_trials_.empty()) Translate(&batch_, nullptr, moved_trials_);
+      try {
+        result = database_.AppendSamples(std::span<const TrialSample>(batch_));
+      } catch (const std::exception& e) {
+        error = e.what();
+      } catch (...) {
+        error = "unknown error";
+      }
     }
     lock.lock();
 
     ++attempts_;
     last_attempt_failed_ = !error.empty();
+    for (size_t k = 0; k < writes_done; ++k)
+      alerts_queued_ -= std::holds_alternative<AlertRecord>(writes_[k].write);
+    writes_.erase(writes_.begin(), writes_.begin() + static_cast<std::ptrdiff_t>(writes_done));
+    writes_done_ += writes_done;
+    std::move(outcomes.begin(), outcomes.end(), std::back_inserter(outcomes_));
     if (error.empty()) {
       stored_.fetch_add(result.inserted);
       rejected_.fetch_add(result.duplicates + result.invalid);
       batch_.clear();
       last_error_.clear();
     } else {
-      last_error_ = error + " (" + std::to_string(batch_.size() + incoming_.size()) +
-                    " samples kept queued; retrying every " + std::to_string(interval.count()) +
-                    " ms)";
+      last_error_ = error + " (" + Held() + " kept queued; retrying every " +
+                    std::to_string(interval.count()) + " ms)";
     }
     flushed_.notify_all();
     deadline = std::max(deadline + interval, std::chrono::steady_clock::now());
+    if (writes_done > 0 && options_.on_outcome) {
+      lock.unlock();
+      options_.on_outcome();
+      lock.lock();
+    }
 
     if (stopping && !error.empty()) {
       if (++failures_while_stopping > kRetriesAtShutdown) {
-        last_error_ = error + " (gave up at shutdown; " + std::to_string(batch_.size()) +
-                      " samples not stored)";
+        last_error_ = error + " (gave up at shutdown; " + Held() + " not stored)";
         break;
       }
       lock.unlock();

@@ -21,6 +21,7 @@
 #include <fstream>
 #include <functional>
 #include <lcm/lcm-cpp.hpp>
+#include <memory>
 #include <mutex>
 #include <nlohmann/json.hpp>
 #include <sstream>
@@ -29,7 +30,10 @@
 #include <utility>
 #include <vector>
 
+#include "child_process.h"
 #include "daemon/daemon.h"
+#include "lcmtypes/message_auth.h"
+#include "scratch_dir.h"
 
 namespace flexid::testing {
 
@@ -304,6 +308,50 @@ inline void RecordFault(const FaultRecord& r) {
     std::fclose(f);
   }
 }
+
+// The configuration of an in-process flexidd on the test's bus: its database
+// (flexid.db) and log (flexidd.log) in the scratch directory, actuator S1 configured.
+inline daemon::Config InProcessConfig(const ScratchDir& scratch, const std::string& url,
+                                      const std::string& daemon_id) {
+  daemon::Config config;
+  config.database = scratch.File("flexid.db");
+  config.lcm_url = url;
+  config.log_file = scratch.File("flexidd.log");
+  config.daemon_id = daemon_id;
+  storage::Actuator s1;
+  s1.id = "S1";
+  config.actuators = {s1};
+  return config;
+}
+
+// A test with flexidd in-process: the test's bus on a random udpm port (ttl=0, skipped
+// without multicast), the configuration of InProcessConfig; StartDaemon() starts it and
+// reads the key its signed requests take.
+class InProcessDaemonTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    url_ = RandomUrl();
+    bus_ = std::make_unique<Bus>(url_, with_predictions_);
+    if (!bus_->good()) GTEST_SKIP() << "no LCM multicast on this host (" << url_ << ")";
+    config_ = InProcessConfig(scratch_, url_, "in_process");
+  }
+  void TearDown() override { daemon_.reset(); }
+
+  void StartDaemon() {
+    daemon::Validate(config_);
+    daemon::SetUpLogging(config_);
+    daemon_ = std::make_unique<daemon::Daemon>(config_);
+    key_ = auth::ReadKeyFile(daemon::KeyFilePath(config_));
+  }
+
+  bool with_predictions_ = false;  // set in the constructor of a test that wants S1's
+  ScratchDir scratch_;
+  std::string url_;
+  daemon::Config config_;
+  std::unique_ptr<Bus> bus_;
+  std::unique_ptr<daemon::Daemon> daemon_;
+  auth::Key key_;
+};
 
 // Runs an in-process flexidd's loop and the test's bus, both in this thread (so the
 // daemon's counters are never read while another thread updates them), until done() or

@@ -738,6 +738,108 @@ TEST(SampleWriter, KeepsSamplesQueuedWhileWritesFailAndRetries) {
   EXPECT_EQ(db.IntegrityCheck(), "ok");
 }
 
+// The writes other than samples go in the order they were submitted, ahead of the samples
+// queued after them; one the database refuses is reported and does not hold up the rest.
+TEST(SampleWriter, WritesTrialsAlertsAndModelsInOrderAheadOfTheirSamples) {
+  ScratchDir dir;
+  const std::string path = dir.File("writes.db");
+  SampleWriter writer(path, {.commit_interval = 20ms});
+  std::vector<uint64_t> tickets;
+  tickets.push_back(writer.Submit(TrialStart{7, "S1", "square", 100}));
+  for (int64_t k = 0; k < 10; ++k) ASSERT_TRUE(writer.Enqueue(7, SampleAt(k)));
+  tickets.push_back(writer.Submit(AlertRecord{0, "S1", "drift", 1, 5, 1, 5, 0.5, 0.1, "text"}));
+  tickets.push_back(writer.Submit(TrialEnd{7, 9, TrialState::kComplete}));
+  tickets.push_back(writer.Submit(TrialEnd{99, 9, TrialState::kComplete}));  // no such trial
+  ModelRecord model;
+  model.actuator_id = "S1";
+  model.model_json = R"({"format": "flexid.model/1", "kind": "tf", "num": [1], "den": [1, 1]})";
+  model.trial_ids = {7};
+  model.active = true;
+  tickets.push_back(writer.Submit(model));
+  tickets.push_back(writer.Submit(ModelActivation{"S1", 1}));
+  Actuator s2;
+  s2.id = "S2";
+  tickets.push_back(writer.Submit(s2));
+  for (size_t k = 1; k < tickets.size(); ++k) EXPECT_GT(tickets[k], tickets[k - 1]);
+  ASSERT_TRUE(writer.Flush()) << writer.last_error();
+  EXPECT_EQ(writer.writes_queued(), 0u);
+
+  const std::vector<WriteOutcome> outcomes = writer.TakeOutcomes();
+  ASSERT_EQ(outcomes.size(), tickets.size());
+  for (size_t k = 0; k < outcomes.size(); ++k) {
+    EXPECT_EQ(outcomes[k].ticket, tickets[k]);
+    EXPECT_EQ(outcomes[k].error.empty(), k != 3) << k << ": " << outcomes[k].error;
+  }
+  EXPECT_NE(outcomes[3].error.find("cannot end trial 99: no such trial"), std::string::npos);
+  EXPECT_EQ(outcomes[0].trial_id, 7);
+  ASSERT_TRUE(outcomes[4].model.has_value());
+  EXPECT_EQ(outcomes[4].model->version, 1);
+  EXPECT_TRUE(writer.TakeOutcomes().empty());
+
+  Database db = Database::Open(path);
+  const auto trial = db.FindTrial(7);
+  ASSERT_TRUE(trial.has_value());
+  EXPECT_EQ(trial->state, TrialState::kComplete);
+  EXPECT_EQ(trial->samples, 10);
+  EXPECT_EQ(db.Alerts().size(), 1u);
+  EXPECT_TRUE(db.ActiveModel("S1").has_value());
+  EXPECT_TRUE(db.FindActuator("S2").has_value());
+  EXPECT_EQ(db.LastTrialId(), 7);
+  EXPECT_EQ(db.IntegrityCheck(), "ok");
+}
+
+// Another program took the trial id the caller handed out: the trial and its samples move
+// to the next free id, and the other program's trial stays as it was.
+TEST(SampleWriter, ATrialIdTakenByAnotherProgramMovesTheTrialWithItsSamples) {
+  ScratchDir dir;
+  const std::string path = dir.File("taken.db");
+  SampleWriter writer(path, {.commit_interval = 20ms});
+  ASSERT_EQ(Database::Open(path).StartTrial("X", "import", 0), 1);
+  writer.Submit(TrialStart{1, "S1", "square", 5});
+  for (int64_t k = 0; k < 3; ++k) ASSERT_TRUE(writer.Enqueue(1, SampleAt(k)));
+  writer.Submit(TrialEnd{1, 2, TrialState::kComplete});
+  ASSERT_TRUE(writer.Flush()) << writer.last_error();
+  const std::vector<WriteOutcome> outcomes = writer.TakeOutcomes();
+  ASSERT_EQ(outcomes.size(), 2u);
+  EXPECT_EQ(outcomes[0].error, "");
+  EXPECT_EQ(outcomes[0].trial_id, 2);
+  EXPECT_EQ(outcomes[1].error, "");
+  Database db = Database::Open(path);
+  EXPECT_EQ(db.FindTrial(1)->actuator_id, "X");
+  EXPECT_EQ(db.FindTrial(1)->samples, 0);
+  EXPECT_EQ(db.FindTrial(2)->actuator_id, "S1");
+  EXPECT_EQ(db.FindTrial(2)->samples, 3);
+  EXPECT_EQ(db.FindTrial(2)->state, TrialState::kComplete);
+}
+
+// A lock held beyond the busy timeout: the writes and the samples behind them stay queued,
+// in order, and are written once it is released.
+TEST(SampleWriter, KeepsWritesQueuedWhileTheDatabaseIsLocked) {
+  ScratchDir dir;
+  const std::string path = dir.File("locked.db");
+  SampleWriter writer(path, {.commit_interval = 20ms});
+  sqlite3* other = nullptr;
+  ASSERT_EQ(sqlite3_open_v2(path.c_str(), &other, SQLITE_OPEN_READWRITE, nullptr), SQLITE_OK);
+  ASSERT_EQ(sqlite3_exec(other, "BEGIN EXCLUSIVE", nullptr, nullptr, nullptr), SQLITE_OK);
+  writer.Submit(TrialStart{1, "S1", "square", 0});
+  ASSERT_TRUE(writer.Enqueue(1, SampleAt(0)));
+  writer.Submit(AlertRecord{0, "", "storage_failing", 2, 1, 1, 1, 0.0, 0.0, "text"});
+  EXPECT_FALSE(writer.Flush());  // after the 5 s busy timeout
+  const std::string error = writer.last_error();
+  EXPECT_NE(error.find("database is locked"), std::string::npos) << error;
+  EXPECT_NE(error.find("1 samples and 2 other writes kept queued"), std::string::npos) << error;
+  EXPECT_EQ(writer.writes_queued(), 2u);
+  EXPECT_TRUE(writer.TakeOutcomes().empty());
+  ASSERT_EQ(sqlite3_exec(other, "COMMIT", nullptr, nullptr, nullptr), SQLITE_OK);
+  sqlite3_close(other);
+  ASSERT_TRUE(writer.Flush()) << writer.last_error();
+  EXPECT_EQ(writer.TakeOutcomes().size(), 2u);
+  EXPECT_EQ(writer.last_error(), "");
+  Database db = Database::Open(path);
+  EXPECT_EQ(db.SampleCount(1), 1);
+  EXPECT_EQ(db.Alerts().size(), 1u);
+}
+
 // Kills a child process that records continuously and checks that every sample it had
 // reported as stored is in the file, intact (DESIGN.md: acknowledged samples survive
 // kill -9).
