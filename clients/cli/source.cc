@@ -7,6 +7,7 @@
 #include "clients/cli/bus.h"
 #include "clients/cli/command.h"
 #include "storage/database.h"
+#include "storage/queries.h"
 #include "storage/record_json.h"
 
 namespace flexid::cli {
@@ -22,32 +23,10 @@ std::chrono::milliseconds Milliseconds(double seconds) {
   return std::chrono::milliseconds(static_cast<int64_t>(seconds * 1000.0));
 }
 
-// Typed access to request arguments, with the daemon's error wording.
-int64_t IntegerArg(const nlohmann::json& args, const char* name, int64_t fallback) {
-  const auto it = args.find(name);
-  if (it == args.end()) return fallback;
-  if (!it->is_number_integer())
-    throw UsageError(std::string("argument \"") + name + "\" must be an integer");
-  return it->get<int64_t>();
-}
-
-std::string ActuatorArg(const nlohmann::json& args, bool required) {
-  const auto it = args.find("actuator");
-  if (it == args.end() || (it->is_string() && it->get<std::string>().empty())) {
-    if (required) throw UsageError("an actuator is needed (--actuator ID)");
-    return "";
-  }
-  if (!it->is_string()) throw UsageError("argument \"actuator\" must be a string");
-  return it->get<std::string>();
-}
-
-// Offline answers, in the daemon's shapes (daemon/daemon.cc HandleRequest).
+// Offline answers, in the daemon's shapes: the stored queries are storage/queries.h's,
+// as flexidd answers them; status and actuators without the live figures.
 nlohmann::json QueryFile(const std::string& method, const nlohmann::json& args) {
   storage::Database db = OpenDbFile();
-  auto known_actuator = [&db](const std::string& id) {
-    if (!db.FindActuator(id)) throw UsageError("unknown actuator \"" + id + "\" in " + DbPath());
-    return id;
-  };
   if (method == "status") {
     int64_t trials = 0, samples = 0, recording = 0, models = 0;
     const std::vector<storage::Actuator> actuators = db.Actuators();
@@ -81,50 +60,12 @@ nlohmann::json QueryFile(const std::string& method, const nlohmann::json& args) 
     }
     return list;
   }
-  if (method == "trials") {
-    std::optional<std::string> filter;
-    if (const std::string id = ActuatorArg(args, false); !id.empty()) filter = known_actuator(id);
-    nlohmann::json list = nlohmann::json::array();
-    for (const storage::Trial& t :
-         db.Trials(filter, static_cast<int>(IntegerArg(args, "limit", 100))))
-      list.push_back(storage::TrialJson(t));
-    return list;
-  }
-  if (method == "trial_samples") {
-    const int64_t id = IntegerArg(args, "trial", 0);
-    const auto trial = db.FindTrial(id);
-    if (!trial) throw UsageError("no trial " + std::to_string(id) + " in " + DbPath());
-    const int64_t offset = IntegerArg(args, "offset", 0);
-    const std::vector<storage::Sample> page = db.SamplesPage(
-        id, IntegerArg(args, "after_utime", INT64_MIN), offset, IntegerArg(args, "limit", 5000));
-    return storage::SamplesPageJson(*trial, offset, page);
-  }
-  if (method == "models") {
-    nlohmann::json list = nlohmann::json::array();
-    for (const storage::ModelRecord& m : db.Models(known_actuator(ActuatorArg(args, true))))
-      list.push_back(storage::ModelSummaryJson(m));
-    return list;
-  }
-  if (method == "model") {
-    const std::string id = known_actuator(ActuatorArg(args, true));
-    const auto version = static_cast<int32_t>(IntegerArg(args, "version", 0));
-    const auto m = version == 0 ? db.ActiveModel(id) : db.FindModel(id, version);
-    if (!m)
-      throw UsageError(version == 0 ? id + " has no active model"
-                                    : "no model version " + std::to_string(version) + " of " + id);
-    nlohmann::json out = storage::ModelSummaryJson(*m);
-    out["model"] = nlohmann::json::parse(m->model_json);
-    return out;
-  }
-  if (method == "alerts") {
-    std::optional<std::string> filter;
-    if (const std::string id = ActuatorArg(args, false); !id.empty()) filter = id;
-    nlohmann::json list = nlohmann::json::array();
-    for (const storage::AlertRecord& a :
-         db.Alerts(filter, IntegerArg(args, "since_utime", 0),
-                   static_cast<int>(IntegerArg(args, "limit", 100))))
-      list.push_back(storage::AlertJson(a));
-    return list;
+  if (storage::IsStoredQuery(method)) {
+    try {
+      return storage::AnswerQuery(db, method, args);
+    } catch (const storage::QueryError& e) {
+      throw UsageError(std::string(e.what()) + " in " + DbPath());
+    }
   }
   throw UsageError("\"" + method + "\" needs a running flexidd; it has no offline form (--db)");
 }
