@@ -4,6 +4,8 @@
 #include <limits>
 #include <regex>
 
+#include "storage/queries.h"
+
 namespace flexid::daemon {
 
 nlohmann::json ParseArguments(const std::string& args_json) {
@@ -29,20 +31,11 @@ std::string StringArgument(const nlohmann::json& args, const char* name,
 
 int64_t IntegerArgument(const nlohmann::json& args, const char* name, int64_t fallback, int64_t min,
                         int64_t max) {
-  const auto it = args.find(name);
-  if (it == args.end()) return fallback;
-  if (!it->is_number_integer())
-    throw ArgumentError(std::string("argument \"") + name + "\" must be an integer");
-  // JSON integers above INT64_MAX parse as unsigned; get<int64_t>() would wrap them to
-  // negative values (found by tests/fuzz/fuzz_rpc_arguments.cc).
-  const bool above_int64 =
-      it->is_number_unsigned() &&
-      it->get<uint64_t>() > static_cast<uint64_t>(std::numeric_limits<int64_t>::max());
-  const int64_t value = above_int64 ? 0 : it->get<int64_t>();
-  if (above_int64 || value < min || value > max)
-    throw ArgumentError(std::string("argument \"") + name + "\" must be in [" +
-                        std::to_string(min) + ", " + std::to_string(max) + "]");
-  return value;
+  try {
+    return storage::IntegerArgument(args, name, fallback, min, max);
+  } catch (const storage::QueryError& e) {
+    throw ArgumentError(e.what());
+  }
 }
 
 int64_t RequiredIntegerArgument(const nlohmann::json& args, const char* name, int64_t min,

@@ -12,26 +12,10 @@ namespace {
 constexpr int64_t kInt64Min = std::numeric_limits<int64_t>::min();
 constexpr int64_t kInt64Max = std::numeric_limits<int64_t>::max();
 
-// An integer argument in [min, max], or `fallback` when absent.
-int64_t Integer(const nlohmann::json& args, const char* name, int64_t fallback, int64_t min,
-                int64_t max) {
-  const auto it = args.find(name);
-  if (it == args.end()) return fallback;
-  if (!it->is_number_integer())
-    throw QueryError(std::string("argument \"") + name + "\" must be an integer");
-  // JSON integers above INT64_MAX parse as unsigned; get<int64_t>() would wrap them.
-  const bool above_int64 =
-      it->is_number_unsigned() && it->get<uint64_t>() > static_cast<uint64_t>(kInt64Max);
-  const int64_t value = above_int64 ? 0 : it->get<int64_t>();
-  if (above_int64 || value < min || value > max)
-    throw QueryError(std::string("argument \"") + name + "\" must be in [" + std::to_string(min) +
-                     ", " + std::to_string(max) + "]");
-  return value;
-}
-
-int64_t RequiredInteger(const nlohmann::json& args, const char* name, int64_t min, int64_t max) {
+int64_t RequiredIntegerArgument(const nlohmann::json& args, const char* name, int64_t min,
+                                int64_t max) {
   if (!args.contains(name)) throw QueryError(std::string("missing argument \"") + name + "\"");
-  return Integer(args, name, min, min, max);
+  return IntegerArgument(args, name, min, min, max);
 }
 
 // The "actuator" argument, checked against the database; empty when absent and optional.
@@ -53,6 +37,22 @@ std::optional<std::string> Filter(const std::string& id) {
 
 }  // namespace
 
+int64_t IntegerArgument(const nlohmann::json& args, const char* name, int64_t fallback, int64_t min,
+                        int64_t max) {
+  const auto it = args.find(name);
+  if (it == args.end()) return fallback;
+  if (!it->is_number_integer())
+    throw QueryError(std::string("argument \"") + name + "\" must be an integer");
+  // JSON integers above INT64_MAX parse as unsigned; get<int64_t>() would wrap them.
+  const bool above_int64 =
+      it->is_number_unsigned() && it->get<uint64_t>() > static_cast<uint64_t>(kInt64Max);
+  const int64_t value = above_int64 ? 0 : it->get<int64_t>();
+  if (above_int64 || value < min || value > max)
+    throw QueryError(std::string("argument \"") + name + "\" must be in [" + std::to_string(min) +
+                     ", " + std::to_string(max) + "]");
+  return value;
+}
+
 bool IsStoredQuery(const std::string& method) {
   return method == "trials" || method == "trial_samples" || method == "models" ||
          method == "model" || method == "alerts";
@@ -64,17 +64,17 @@ nlohmann::json AnswerQuery(Database& db, const std::string& method, const nlohma
     const std::string id = ActuatorArgument(db, args, false);
     nlohmann::json list = nlohmann::json::array();
     for (const Trial& t :
-         db.Trials(Filter(id), static_cast<int>(Integer(args, "limit", 100, 1, 10000))))
+         db.Trials(Filter(id), static_cast<int>(IntegerArgument(args, "limit", 100, 1, 10000))))
       list.push_back(TrialJson(t));
     return list;
   }
   if (method == "trial_samples") {
-    const int64_t id = RequiredInteger(args, "trial", 1, kInt64Max);
+    const int64_t id = RequiredIntegerArgument(args, "trial", 1, kInt64Max);
     const auto trial = db.FindTrial(id);
     if (!trial) throw QueryError("no trial " + std::to_string(id), QueryError::Kind::kNotFound);
-    const int64_t offset = Integer(args, "offset", 0, 0, kInt64Max);
-    const int64_t after = Integer(args, "after_utime", kInt64Min, kInt64Min, kInt64Max);
-    const int64_t limit = Integer(args, "limit", 5000, 1, 20000);
+    const int64_t offset = IntegerArgument(args, "offset", 0, 0, kInt64Max);
+    const int64_t after = IntegerArgument(args, "after_utime", kInt64Min, kInt64Min, kInt64Max);
+    const int64_t limit = IntegerArgument(args, "limit", 5000, 1, 20000);
     return SamplesPageJson(*trial, offset, db.SamplesPage(id, after, offset, limit));
   }
   if (method == "models") {
@@ -85,8 +85,8 @@ nlohmann::json AnswerQuery(Database& db, const std::string& method, const nlohma
   }
   if (method == "model") {
     const std::string id = ActuatorArgument(db, args, true);
-    const auto version =
-        static_cast<int32_t>(Integer(args, "version", 0, 0, std::numeric_limits<int32_t>::max()));
+    const auto version = static_cast<int32_t>(
+        IntegerArgument(args, "version", 0, 0, std::numeric_limits<int32_t>::max()));
     const auto m = version == 0 ? db.ActiveModel(id) : db.FindModel(id, version);
     if (!m)
       throw QueryError(version == 0 ? id + " has no active model"
@@ -99,8 +99,9 @@ nlohmann::json AnswerQuery(Database& db, const std::string& method, const nlohma
   if (method == "alerts") {
     const std::string id = ActuatorArgument(db, args, false);
     nlohmann::json list = nlohmann::json::array();
-    for (const AlertRecord& a : db.Alerts(Filter(id), Integer(args, "since_utime", 0, 0, kInt64Max),
-                                          static_cast<int>(Integer(args, "limit", 100, 1, 10000))))
+    for (const AlertRecord& a :
+         db.Alerts(Filter(id), IntegerArgument(args, "since_utime", 0, 0, kInt64Max),
+                   static_cast<int>(IntegerArgument(args, "limit", 100, 1, 10000))))
       list.push_back(AlertJson(a));
     return list;
   }

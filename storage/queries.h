@@ -31,6 +31,12 @@ struct QueryError : std::runtime_error {
   Kind kind;
 };
 
+// A request's integer argument in [min, max], or `fallback` when absent; throws QueryError
+// naming the argument (a JSON integer above INT64_MAX is refused, never wrapped). flexidd's
+// other methods read their integers with it too.
+int64_t IntegerArgument(const nlohmann::json& args, const char* name, int64_t fallback, int64_t min,
+                        int64_t max);
+
 // True for the methods AnswerQuery answers.
 bool IsStoredQuery(const std::string& method);
 
