@@ -1377,21 +1377,17 @@ IdentifyResult RunIdentification(const std::string& database, const std::string&
       options.local.num_poles = config.poles;
       options.local.max_delay_s = config.max_delay_s;
       const model::TsEstimate estimate = model::IdentifyTsModel(recordings, options);
-      doc = estimate.local.size() == 1 ? model::FromTransferFunction(estimate.local[0].estimate.tf)
-                                       : model::FromTsModel(estimate.model);
-      doc.extra["fit"] = model::FitFiguresToJson(estimate.fit);
-      // Each local model's level and own fit figures, where `flexid identify --method
-      // time` puts them.
-      if (estimate.local.size() == 1)
-        doc.extra["level_V"] = estimate.local[0].level_V;
-      else
-        for (size_t i = 0; i < estimate.local.size() && i < doc.local_extra.size(); ++i)
-          doc.local_extra[i]["fit"] = model::FitFiguresToJson(estimate.local[i].estimate.fit);
+      // The same document `flexid identify --method time` writes (identify_ts.h).
+      doc = model::ToModelDocument(estimate);
       fit = model::FitFiguresToJson(estimate.fit);
       fit["levels_V"] = nlohmann::json::array();
       for (const auto& local : estimate.local) fit["levels_V"].push_back(local.level_V);
     }
+    // What `flexid identify --trials` adds, so a model file reads the same online and offline.
+    doc.extra["identified_from"] = nlohmann::json::array();
+    for (const model::Recording& r : recordings) doc.extra["identified_from"].push_back(r.source);
     doc.extra["identified_from_trials"] = trial_ids;
+    doc.extra["flexid_version"] = kVersion;
     storage::ModelRecord record;
     record.actuator_id = actuator_id;
     record.created_utime = bus::WallClockUtime();

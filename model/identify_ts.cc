@@ -194,4 +194,66 @@ FitFigures EvaluateTsFit(const TsModel& model, const std::vector<Recording>& rec
   return FitFiguresOf(measured, predicted, input, correlation_lags);
 }
 
+namespace {
+
+nlohmann::json NumberOrNull(double value) {
+  return std::isfinite(value) ? nlohmann::json(value) : nlohmann::json(nullptr);
+}
+
+}  // namespace
+
+nlohmann::json ParameterEstimatesToJson(const std::vector<ParameterEstimate>& estimates) {
+  nlohmann::json out = nlohmann::json::object();
+  for (const auto& e : estimates)
+    out[e.name] = {{"value", e.value}, {"half_width_95", NumberOrNull(e.half_width_95)}};
+  return out;
+}
+
+nlohmann::json PoleEstimatesToJson(const std::vector<PoleEstimate>& poles) {
+  nlohmann::json out = nlohmann::json::array();
+  for (const auto& p : poles)
+    out.push_back({{"re", p.re},
+                   {"im", p.im},
+                   {"re_half_width_95", NumberOrNull(p.re_half_width_95)},
+                   {"im_half_width_95", NumberOrNull(p.im_half_width_95)}});
+  return out;
+}
+
+ModelDocument ToModelDocument(const TsEstimate& estimate) {
+  ModelDocument doc;
+  if (estimate.local.size() == 1) {
+    doc = FromTransferFunction(estimate.local[0].estimate.tf);
+    doc.extra["level_V"] = estimate.local[0].level_V;
+  } else {
+    doc = FromTsModel(estimate.model);
+  }
+  for (size_t i = 0; i < estimate.local.size(); ++i) {
+    const TfEstimate& e = estimate.local[i].estimate;
+    nlohmann::json local = {
+        {"fit", FitFiguresToJson(e.fit)},
+        {"intervals", ParameterEstimatesToJson(e.coefficients)},
+        {"dc_gain",
+         {{"value", e.dc_gain.value}, {"half_width_95", NumberOrNull(e.dc_gain.half_width_95)}}},
+        {"poles", PoleEstimatesToJson(e.poles)},
+        {"noise_std_mm", e.noise_std_mm}};
+    if (estimate.local.size() == 1) {
+      for (auto& [key, value] : local.items()) doc.extra[key] = value;
+    } else if (i < doc.local_extra.size()) {
+      doc.local_extra[i] = local;
+    }
+  }
+  doc.extra["fit"] = FitFiguresToJson(estimate.fit);
+  if (!estimate.leave_one_level_out.empty()) {
+    nlohmann::json lolo = nlohmann::json::array();
+    for (const auto& r : estimate.leave_one_level_out)
+      lolo.push_back({{"level_V", r.level_V},
+                      {"in_sample_rmse_mm", r.in_sample_rmse_mm},
+                      {"left_out_rmse_mm", r.left_out_rmse_mm},
+                      {"left_out_fit_percent", NumberOrNull(r.left_out_fit_percent)}});
+    doc.extra["leave_one_level_out"] = lolo;
+  }
+  if (!estimate.notes.empty()) doc.extra["notes"] = estimate.notes;
+  return doc;
+}
+
 }  // namespace flexid::model

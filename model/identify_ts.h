@@ -18,6 +18,7 @@
 
 #include "model/identify.h"
 #include "model/levels.h"
+#include "model/model_file.h"
 #include "model/recording.h"
 #include "model/ts_fuzzy.h"
 
@@ -63,6 +64,18 @@ struct TsEstimate {
 // Throws InputError for unusable recordings (named by Recording::source).
 TsEstimate IdentifyTsModel(const std::vector<Recording>& recordings,
                            const TsIdentifyOptions& options = {});
+
+// The model file of a per-level identification, as both `flexid identify --method time`
+// and flexidd write it: the model (one transfer function, or the T-S blend), its fit, each
+// local model's level, fit, coefficient intervals, DC gain, poles and noise (in the
+// document's extra members for one level, in local_extra for several), the
+// leave-one-level-out figures and the notes.
+ModelDocument ToModelDocument(const TsEstimate& estimate);
+
+// {"NAME": {"value": .., "half_width_95": ..}} (null half-width when not determined).
+nlohmann::json ParameterEstimatesToJson(const std::vector<ParameterEstimate>& estimates);
+// [{"re", "im", "re_half_width_95", "im_half_width_95"}].
+nlohmann::json PoleEstimatesToJson(const std::vector<PoleEstimate>& poles);
 
 // Fit figures of a T-S model on whole recordings (validation).
 FitFigures EvaluateTsFit(const TsModel& model, const std::vector<Recording>& recordings,

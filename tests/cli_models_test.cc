@@ -173,6 +173,19 @@ TEST_F(CliModels, IdentifyListShowDiffActivate) {
   EXPECT_EQ(local["kind"], "ts_fuzzy");
   EXPECT_EQ(local["identified_from_trials"], json::array({trial_2V_, trial_8V_}));
   EXPECT_GT(local["fit"]["fit_percent"].get<double>(), 80.0);
+  // flexidd's model file of the same trials, in the same order (v1: its latest two,
+  // newest first), has the same members: one document builder serves both.
+  std::string v1_trials;
+  for (const json& id : v1["model"]["identified_from_trials"])
+    v1_trials += (v1_trials.empty() ? "" : ",") + std::to_string(id.get<int64_t>());
+  offline = Offline("identify --trials " + v1_trials + " --json");
+  ASSERT_EQ(offline.exit_code, 0) << offline.err;
+  const json offline_v1 = ParseJson(offline);
+  for (const auto& [key, value] : offline_v1.items())
+    EXPECT_TRUE(v1["model"].contains(key)) << "flexidd's model file lacks \"" << key << "\"";
+  for (const auto& [key, value] : v1["model"].items())
+    EXPECT_TRUE(offline_v1.contains(key)) << "the offline model file lacks \"" << key << "\"";
+  EXPECT_EQ(v1["model"]["identified_from"], offline_v1["identified_from"]);
   offline = Offline("models list --actuator S1 --json");
   ASSERT_EQ(offline.exit_code, 0) << offline.err;
   EXPECT_EQ(ParseJson(offline).size(), 2u);

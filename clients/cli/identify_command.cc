@@ -60,25 +60,6 @@ struct IdentifyArgs {
   std::vector<int64_t> trial_ids;
 };
 
-json Number(double value) { return std::isfinite(value) ? json(value) : json(nullptr); }
-
-json IntervalsJson(const std::vector<model::ParameterEstimate>& estimates) {
-  json out = json::object();
-  for (const auto& e : estimates)
-    out[e.name] = {{"value", e.value}, {"half_width_95", Number(e.half_width_95)}};
-  return out;
-}
-
-json PolesJson(const std::vector<model::PoleEstimate>& poles) {
-  json out = json::array();
-  for (const auto& p : poles)
-    out.push_back({{"re", p.re},
-                   {"im", p.im},
-                   {"re_half_width_95", Number(p.re_half_width_95)},
-                   {"im_half_width_95", Number(p.im_half_width_95)}});
-  return out;
-}
-
 std::string Passed(bool tested, bool passed) { return !tested ? "-" : passed ? "pass" : "FAIL"; }
 
 void PrintFit(const std::string& label, const model::FitFigures& fit) {
@@ -161,39 +142,7 @@ void RunFree(const IdentifyArgs& args, model::ModelDocument* doc,
     options.local.fixed_delay_s = *args.delay_s;
   }
   const model::TsEstimate estimate = model::IdentifyTsModel(recordings, options);
-  if (estimate.local.size() == 1) {
-    *doc = model::FromTransferFunction(estimate.local[0].estimate.tf);
-    doc->extra["level_V"] = estimate.local[0].level_V;
-  } else {
-    *doc = model::FromTsModel(estimate.model);
-  }
-  json locals = json::array();
-  for (size_t i = 0; i < estimate.local.size(); ++i) {
-    const model::TfEstimate& e = estimate.local[i].estimate;
-    json local = {
-        {"fit", model::FitFiguresToJson(e.fit)},
-        {"intervals", IntervalsJson(e.coefficients)},
-        {"dc_gain",
-         {{"value", e.dc_gain.value}, {"half_width_95", Number(e.dc_gain.half_width_95)}}},
-        {"poles", PolesJson(e.poles)},
-        {"noise_std_mm", e.noise_std_mm}};
-    if (estimate.local.size() == 1) {
-      for (auto& [key, value] : local.items()) doc->extra[key] = value;
-    } else {
-      doc->local_extra[i] = local;
-    }
-  }
-  doc->extra["fit"] = model::FitFiguresToJson(estimate.fit);
-  if (!estimate.leave_one_level_out.empty()) {
-    json lolo = json::array();
-    for (const auto& r : estimate.leave_one_level_out)
-      lolo.push_back({{"level_V", r.level_V},
-                      {"in_sample_rmse_mm", r.in_sample_rmse_mm},
-                      {"left_out_rmse_mm", r.left_out_rmse_mm},
-                      {"left_out_fit_percent", Number(r.left_out_fit_percent)}});
-    doc->extra["leave_one_level_out"] = lolo;
-  }
-  if (!estimate.notes.empty()) doc->extra["notes"] = estimate.notes;
+  *doc = model::ToModelDocument(estimate);
   if (!args.as_json) {
     std::cout << estimate.local.size()
               << (estimate.local.size() == 1 ? " voltage level" : " voltage levels")
@@ -277,8 +226,8 @@ void RunPhysics(const IdentifyArgs& args, model::ModelDocument* doc,
   for (double& c : deflection.num) c *= 0.5 * start.L_m * start.L_m * 1000.0;
   *doc = model::FromTransferFunction(deflection);
   doc->extra["structure"] = "physics";
-  doc->extra["physical_parameters"] = IntervalsJson(e.estimates);
-  doc->extra["identifiable_combinations"] = IntervalsJson(e.combinations);
+  doc->extra["physical_parameters"] = model::ParameterEstimatesToJson(e.estimates);
+  doc->extra["identifiable_combinations"] = model::ParameterEstimatesToJson(e.combinations);
   doc->extra["geometry_mm"] = {
       {"L", start.L_m * 1e3}, {"W", start.W_m * 1e3}, {"h", start.h_m * 1e3}};
   doc->extra["fit"] = model::FitFiguresToJson(e.fit);
@@ -341,7 +290,7 @@ void RunFrequency(const IdentifyArgs& args, model::ModelDocument* doc,
                       {"harmonic", p.harmonic}});
   doc->extra["method"] = "frequency";
   doc->extra["frequency_points"] = points;
-  doc->extra["intervals"] = IntervalsJson(fit.coefficients);
+  doc->extra["intervals"] = model::ParameterEstimatesToJson(fit.coefficients);
   doc->extra["weighted_rms_error"] = fit.weighted_rms_error;
   doc->extra["report"] = fit.method_report;
   if (!args.as_json) {
