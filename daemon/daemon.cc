@@ -1560,16 +1560,15 @@ RpcOutcome Daemon::Impl::HandleRequest(const flexid::rpc_request_t& request) {
       } else {
         const auto latest =
             IntegerArgument(args, "latest", config.identification.latest_trials, 1, 100);
-        // Only trials long enough to identify from (identify.h: 20 samples per parameter and
-        // the dead-time range plus 50 samples, at the trial's own sample period).
+        // Only trials long enough to identify from (model::MinimumSamplesToIdentify, at the
+        // trial's own sample period).
         const IdentificationConfig& ic = config.identification;
         auto long_enough = [&ic](const storage::Trial& t) {
           if (t.samples < 2 || t.end_utime <= t.start_utime) return false;
           const double dt_s = 1e-6 * static_cast<double>(t.end_utime - t.start_utime) /
                               static_cast<double>(t.samples - 1);
-          const double needed =
-              std::max(20.0 * (ic.zeros + ic.poles + 2), ic.max_delay_s / dt_s + 50.0);
-          return static_cast<double>(t.samples) >= needed;
+          return static_cast<size_t>(t.samples) >=
+                 model::MinimumSamplesToIdentify(ic.zeros + ic.poles + 2, ic.max_delay_s, dt_s);
         };
         for (const storage::Trial& t : db.Trials(state->info.id, 1000)) {
           if (t.state == storage::TrialState::kRecording || !long_enough(t)) continue;

@@ -728,6 +728,11 @@ bool CovarianceFromNormalMatrix(const Eigen::MatrixXd& jtj, int q, double sigma2
   return true;
 }
 
+size_t MinimumSamplesToIdentify(int parameters, double max_delay_s, double dt_s) {
+  return std::max<size_t>(20 * static_cast<size_t>(std::max(parameters, 0)),
+                          static_cast<size_t>(max_delay_s / dt_s) + 50);
+}
+
 void ValidateSegments(const std::vector<DataSegment>& segments, int parameters,
                       double max_delay_s) {
   if (segments.empty()) throw InputError("no data to identify from");
@@ -756,8 +761,7 @@ void ValidateSegments(const std::vector<DataSegment>& segments, int parameters,
     fitted += seg.voltage_V.size() - seg.fit_begin;
     dt_max_s = std::max(dt_max_s, seg.dt_s);
   }
-  const size_t needed = std::max<size_t>(20 * static_cast<size_t>(parameters),
-                                         static_cast<size_t>(max_delay_s / dt_max_s) + 50);
+  const size_t needed = MinimumSamplesToIdentify(parameters, max_delay_s, dt_max_s);
   if (fitted < needed)
     throw InputError("recording too short: " + std::to_string(fitted) +
                      " samples to fit, need at least " + std::to_string(needed));

@@ -136,6 +136,11 @@ FitFigures FitOnSegments(const std::vector<DataSegment>& segments,
 bool CovarianceFromNormalMatrix(const Eigen::MatrixXd& jtj, int q, double sigma2,
                                 Eigen::MatrixXd* covariance);
 
+// Samples a fit of `parameters` parameters needs at sample period dt_s: 20 per parameter,
+// and the dead-time range (max_delay_s) plus 50. IdentifyOptions' fit has
+// num_zeros + num_poles + 2 parameters (the gain and the dead time with the coefficients).
+size_t MinimumSamplesToIdentify(int parameters, double max_delay_s, double dt_s);
+
 // Checks what every fit needs of its segments, before any solver sees them: finite values,
 // equal lengths, something to fit after the lead-in, at least 20 samples per parameter and
 // the dead-time range plus 50, and an input that changes (counting the step from the
