@@ -10,6 +10,7 @@
 //       [--recv-buf-size BYTES (LCM udpm recv_buf_size=, daemon and bench)]
 //       [--commit-interval-ms MS (the daemon's setting)] [--tap-deflections 1]
 //       [--log-level warn] [--dump FILE.csv] [--keep]
+//       [--channel-prefix FLEXID (the daemon's channel_prefix, and this program's channels)]
 //   soak (issue 7; bench/soak runs --seconds 600 --identify-every 60):
 //       [--identify-every S (instead of --identify-at)] [--sample-every 10]
 //       [--warmup-s 60 (S + 30 with --identify-every)]
@@ -34,7 +35,7 @@
 //    (faster than real time), so that it holds --first-trial-s of samples: the daemon's
 //    identification needs max_delay_s / dt + 50 samples (10 s at the default max_delay_s),
 //    and 22 s at 500 Hz is the 11,000 samples of DESIGN.md's identification target.
-//  - Subscriber: FLEXID/.*/PREDICTION (and, with --tap-deflections 1, FLEXID/.*/DEFLECTION,
+//  - Subscriber: PREFIX/.*/PREDICTION (and, with --tap-deflections 1, PREFIX/.*/DEFLECTION,
 //    only for its kernel receive time stamp) and the RPC replies.
 //  - At --identify-at: "identify" {"actuator": "L00", "latest": 1} (L00's first trial).
 //  - Or, with --identify-every S, at S, 2S, ...: "identify" {"actuator": L<j mod N>,
@@ -82,10 +83,7 @@
 #include <flexid/deflection_sample_t.hpp>
 #include <flexid/prediction_t.hpp>
 #include <flexid/rpc_reply_t.hpp>
-#include <flexid/rpc_request_t.hpp>
 #include <flexid/status_t.hpp>
-#include <flexid/trial_control2_t.hpp>
-#include <flexid/voltage_sample_t.hpp>
 #include <fstream>
 #include <future>
 #include <lcm/lcm-cpp.hpp>
@@ -100,7 +98,10 @@
 #include <thread>
 #include <vector>
 
-#include "bus/clock.h"
+#include "bus/channels.h"
+#include "bus/lcm_url.h"
+#include "bus/rpc_client.h"
+#include "bus/sample_publisher.h"
 #include "daemon/config.h"
 #include "daemon/daemon.h"
 #include "lcmtypes/message_auth.h"
@@ -131,7 +132,8 @@ struct Options {
   int64_t recv_buf_size = 0;  // LCM udpm recv_buf_size= (0: LCM's default, the kernel's)
   bool tap_deflections = true;
   std::string log_level = "warn";
-  bool keep = false;           // keep the temporary database
+  std::string channel_prefix = flexid::bus::kDefaultPrefix;  // the daemon's and ours
+  bool keep = false;                                         // keep the temporary database
   std::string dump;            // CSV of every timed sample, for offline analysis
   int renice_workers = 0;      // experiment: nice of the daemon's writer and worker threads
   int commit_interval_ms = 0;  // the daemon's commit_interval_ms (0: its default)
@@ -151,6 +153,7 @@ struct Options {
                "[--identify-at S] [--period-s S] [--first-trial-s S] [--recv-buf-size BYTES] "
                "[--tap-deflections 0|1] "
                "[--log-level LEVEL] [--dump FILE.csv] [--commit-interval-ms MS] "
+               "[--channel-prefix PREFIX] "
                "[--renice-workers NICE] [--pin-threads] [--keep] "
                "[--identify-every S] [--sample-every S] [--warmup-s S]\n",
                problem.c_str());
@@ -206,6 +209,8 @@ Options ParseOptions(int argc, char** argv) {
       o.tap_deflections = Number(flag, value) != 0.0;
     else if (flag == "--log-level")
       o.log_level = value;
+    else if (flag == "--channel-prefix")
+      o.channel_prefix = value;
     else if (flag == "--dump")
       o.dump = value;
     else if (flag == "--commit-interval-ms")
@@ -222,6 +227,8 @@ Options ParseOptions(int argc, char** argv) {
   if (o.renice_workers < 0 || o.renice_workers > 19) Usage("--renice-workers must be 0..19");
   if (o.first_trial_s < 0 || o.first_trial_s > 3600) Usage("--first-trial-s must be 0..3600");
   if (o.recv_buf_size < 0) Usage("--recv-buf-size must be >= 0");
+  if (!flexid::bus::IsValidPrefix(o.channel_prefix))
+    Usage("--channel-prefix " + flexid::bus::PrefixProblem(o.channel_prefix));
   if (o.identify_every > 0) {
     if (o.identify_at_given && o.identify_at > 0)
       Usage("--identify-at and --identify-every exclude each other");
@@ -316,8 +323,9 @@ class Publisher {
   // L00's history is published from history_start on, history_speed times faster than
   // real time; the run's tick k at t0 + k / rate.
   // Trial control is signed with `key`, that of the daemon under test.
-  Publisher(const Plan& plan, const std::string& url, Clock::time_point history_start,
-            double history_speed, Clock::time_point t0, const flexid::auth::Key& key)
+  Publisher(const Plan& plan, const std::string& url, const flexid::bus::Channels& channels,
+            Clock::time_point history_start, double history_speed, Clock::time_point t0,
+            const flexid::auth::Key& key)
       : plan_(plan),
         key_(key),
         lcm_(url),
@@ -330,11 +338,8 @@ class Publisher {
         dead_(static_cast<int64_t>(std::llround(kDeadTimeS * plan.rate_hz))),
         a_(std::exp(-1.0 / (plan.rate_hz * kTauS))) {
     for (auto& p : publish_ns_) p.store(kUnset, std::memory_order_relaxed);
-    for (int i = 0; i < plan_.actuators; ++i) {
-      ids_.push_back(ActuatorId(i));
-      voltage_channel_.push_back("FLEXID/" + ids_.back() + "/VOLTAGE");
-      deflection_channel_.push_back("FLEXID/" + ids_.back() + "/DEFLECTION");
-    }
+    for (int i = 0; i < plan_.actuators; ++i)
+      actuators_.emplace_back(lcm_, channels, ActuatorId(i), &key_);
     report_.late_by_s.assign(
         static_cast<size_t>(static_cast<double>(plan.samples) / plan.rate_hz) + 2, 0);
   }
@@ -343,7 +348,7 @@ class Publisher {
   void Run() {
     NameThread("bench-pub");
     for (int i = 0; i < plan_.actuators; ++i)
-      Control(i, flexid::trial_control2_t::kStart, plan_.Utime(plan_.FirstK(i)) - 1, "daemon_load");
+      Control(i, flexid::bus::TrialAction::kStart, plan_.Utime(plan_.FirstK(i)) - 1, "daemon_load");
     for (int64_t k = -plan_.history; k < 0; ++k) {
       std::this_thread::sleep_until(history_start_ + std::chrono::nanoseconds(std::llround(
                                                          static_cast<double>(k + plan_.history) *
@@ -373,8 +378,8 @@ class Publisher {
       for (; next_restart < plan_.restarts.size() && plan_.restarts[next_restart].first <= k;
            ++next_restart) {
         const int a = plan_.restarts[next_restart].second;
-        Control(a, flexid::trial_control2_t::kStop, plan_.Utime(k) - 1, "");
-        Control(a, flexid::trial_control2_t::kStart, plan_.Utime(k), "daemon_load next trial");
+        Control(a, flexid::bus::TrialAction::kStop, plan_.Utime(k) - 1, "");
+        Control(a, flexid::bus::TrialAction::kStart, plan_.Utime(k), "daemon_load next trial");
       }
       for (int i = 0; i < plan_.actuators; ++i) PublishSample(i, k);
       report_.max_tick_ns = std::max(report_.max_tick_ns, Since(start, Clock::now()));
@@ -383,7 +388,7 @@ class Publisher {
     report_.end = Clock::now();
     report_.cpu_ns = ThreadCpuNs() - cpu_start;
     for (int i = 0; i < plan_.actuators; ++i)
-      Control(i, flexid::trial_control2_t::kStop, plan_.Utime(plan_.samples - 1) + 1, "");
+      Control(i, flexid::bus::TrialAction::kStop, plan_.Utime(plan_.samples - 1) + 1, "");
   }
 
   const PublisherReport& report() const { return report_; }
@@ -401,27 +406,20 @@ class Publisher {
   // The voltage, then the deflection (first-order lag with dead time, plus noise).
   void PublishSample(int i, int64_t k) {
     const size_t s = static_cast<size_t>(i);
-    voltage_.utime = deflection_.utime = plan_.Utime(k);
-    voltage_.actuator_id = deflection_.actuator_id = ids_[s];
-    voltage_.voltage_V = plan_.Voltage(i, k);
+    const int64_t utime = plan_.Utime(k);
     const double driving = k - dead_ >= plan_.FirstK(i) ? plan_.Voltage(i, k - dead_) : 0.0;
     state_[s] = a_ * state_[s] + (1.0 - a_) * kGainMmPerV * driving;
-    deflection_.deflection_mm = state_[s] + noise_(random_);
-    if (lcm_.publish(voltage_channel_[s], &voltage_) != 0) ++report_.publish_failures;
-    deflection_mm_[plan_.Slot(i, k)] = deflection_.deflection_mm;
+    const double deflection_mm = state_[s] + noise_(random_);
+    if (!actuators_[s].PublishVoltage(utime, plan_.Voltage(i, k))) ++report_.publish_failures;
+    deflection_mm_[plan_.Slot(i, k)] = deflection_mm;
     publish_ns_[plan_.Slot(i, k)].store(Since(t0_, Clock::now()), std::memory_order_relaxed);
-    if (lcm_.publish(deflection_channel_[s], &deflection_) != 0) ++report_.publish_failures;
+    if (!actuators_[s].PublishDeflection(utime, deflection_mm)) ++report_.publish_failures;
   }
 
-  void Control(int actuator, int8_t action, int64_t utime, const std::string& protocol) {
-    flexid::trial_control2_t c;
-    c.utime = utime;
-    c.actuator_id = ActuatorId(actuator);
-    c.action = action;
-    c.protocol = protocol;
-    c.sent_utime = flexid::bus::WallClockUtime();
-    flexid::auth::Sign(key_, &c);
-    if (lcm_.publish("FLEXID/TRIAL", &c) != 0) ++report_.publish_failures;
+  void Control(int actuator, flexid::bus::TrialAction action, int64_t utime,
+               const std::string& protocol) {
+    if (!actuators_[static_cast<size_t>(actuator)].PublishTrialControl(utime, action, protocol))
+      ++report_.publish_failures;
   }
 
   const Plan plan_;
@@ -437,9 +435,7 @@ class Publisher {
   const double a_;                                // the lag's pole
   std::mt19937_64 random_{42};
   std::normal_distribution<double> noise_{0.0, kNoiseMm};
-  flexid::voltage_sample_t voltage_;
-  flexid::deflection_sample_t deflection_;
-  std::vector<std::string> ids_, voltage_channel_, deflection_channel_;
+  std::vector<flexid::bus::SamplePublisher> actuators_;  // L00, L01, ...
   PublisherReport report_;
 };
 
@@ -511,16 +507,15 @@ struct LiveLatency {
 
 // --- subscriber ------------------------------------------------------------------------
 
-struct ReplyRecord {
-  flexid::rpc_reply_t reply;
-  Clock::time_point received;
-};
+using ReplyRecord = flexid::bus::RpcReply;
 
 class Subscriber {
  public:
-  Subscriber(const Plan& plan, const std::string& url, bool tap_deflections)
+  Subscriber(const Plan& plan, const std::string& url, const flexid::bus::Channels& channels,
+             bool tap_deflections)
       : plan_(plan),
         url_(url),
+        channels_(channels),
         tap_(tap_deflections),
         prediction_rx_ns_(plan.Slots(), kUnset),
         prediction_kernel_us_(plan.Slots(), kUnset),
@@ -564,32 +559,19 @@ class Subscriber {
     std::swap(out, live_);
     return out;
   }
-  // The daemon's last FLEXID/STATUS heartbeat (once a second), if any.
+  // The daemon's last PREFIX/STATUS heartbeat (once a second), if any.
   std::optional<flexid::status_t> LatestStatus() {
     std::lock_guard lock(live_mutex_);
     return status_;
   }
 
-  // Sends a request and waits for its reply.
+  // Sends a request and waits for its reply (handled on the subscriber's thread); `sent`:
+  // just before the request is built and signed.
   std::optional<ReplyRecord> Call(const std::string& method, const nlohmann::json& args,
                                   std::chrono::milliseconds timeout,
                                   Clock::time_point* sent = nullptr) {
-    flexid::rpc_request_t request;
-    request.request_id = "load-" + std::to_string(++requests_);
-    request.client_id = kClientId;
-    request.method = method;
-    request.args_json = args.dump();
-    request.utime = flexid::bus::WallClockUtime();
-    if (flexid::auth::ChangesData(method)) flexid::auth::Sign(key_, &request);  // "identify"
-    std::unique_lock lock(mutex_);
     if (sent) *sent = Clock::now();
-    lcm_->publish("FLEXID/RPC/REQUEST", &request);  // LCM's publish is thread-safe
-    replied_.wait_for(lock, timeout, [&] { return replies_.count(request.request_id) > 0; });
-    const auto it = replies_.find(request.request_id);
-    if (it == replies_.end()) return std::nullopt;
-    ReplyRecord out = it->second;
-    replies_.erase(it);  // the soak sends requests all along: keep the map small
-    return out;
+    return rpc_->Call(method, args.dump(), timeout);
   }
 
   int64_t received() const { return received_; }
@@ -609,15 +591,15 @@ class Subscriber {
       ready->set_value(false);
       return;
     }
-    lcm_->subscribeFunction("FLEXID/.*/PREDICTION", &Subscriber::OnPrediction, this)
+    lcm_->subscribeFunction(channels_.AllPredictions(), &Subscriber::OnPrediction, this)
         ->setQueueCapacity(1 << 20);
     if (tap_)
-      lcm_->subscribeFunction("FLEXID/.*/DEFLECTION", &Subscriber::OnDeflection, this)
+      lcm_->subscribeFunction(channels_.AllDeflections(), &Subscriber::OnDeflection, this)
           ->setQueueCapacity(1 << 20);
-    lcm_->subscribeFunction(std::string("FLEXID/RPC/REPLY/") + kClientId, &Subscriber::OnReply,
-                            this)
-        ->setQueueCapacity(100);
-    lcm_->subscribeFunction("FLEXID/STATUS", &Subscriber::OnStatus, this)->setQueueCapacity(10);
+    rpc_ = std::make_unique<flexid::bus::RpcClient>(*lcm_, channels_, kClientId, &key_,
+                                                    flexid::bus::RpcClient::Dispatch::kElsewhere);
+    lcm_->subscribeFunction(flexid::bus::Exactly(channels_.Status()), &Subscriber::OnStatus, this)
+        ->setQueueCapacity(10);
     ready->set_value(true);
     while (!stop_) lcm_->handleTimeout(10);
   }
@@ -670,29 +652,17 @@ class Subscriber {
     if (i && k) self->deflection_kernel_us_[self->plan_.Slot(*i, *k)] = rbuf->recv_utime;
   }
 
-  static void OnReply(const lcm::ReceiveBuffer* rbuf, const std::string&, Subscriber* self) {
-    flexid::rpc_reply_t r;
-    if (r.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) <= 0) return;
-    {
-      std::lock_guard lock(self->mutex_);
-      self->replies_[r.request_id] = {r, Clock::now()};
-    }
-    self->replied_.notify_all();
-  }
-
   const Plan plan_;
   const std::string url_;
+  const flexid::bus::Channels channels_;
   const bool tap_;
   flexid::auth::Key key_;  // SetKey()
   std::atomic<Clock::rep> t0_ns_{0};
   std::unique_ptr<lcm::LCM> lcm_;
+  std::unique_ptr<flexid::bus::RpcClient> rpc_;  // on lcm_, replies handled by Run()
   std::thread thread_;
   std::atomic<bool> stop_{false};
   pid_t tid_ = 0;
-  std::atomic<int> requests_{0};
-  std::mutex mutex_;
-  std::condition_variable replied_;
-  std::map<std::string, ReplyRecord> replies_;
   // Written by the subscriber thread only; read after it has been joined.
   int64_t received_ = 0, unmatched_ = 0, duplicates_ = 0;
   std::vector<int64_t> prediction_rx_ns_;      // steady ns since t0 in the handler
@@ -1212,7 +1182,8 @@ int main(int argc, char** argv) {
   std::random_device device;
   const int port = std::uniform_int_distribution<int>(20000, 60000)(device);
   std::string url = "udpm://239.255.76.67:" + std::to_string(port) + "?ttl=0";
-  if (opt.recv_buf_size > 0) url += "&recv_buf_size=" + std::to_string(opt.recv_buf_size);
+  if (opt.recv_buf_size > 0) url = flexid::bus::WithReceiveBuffer(url, opt.recv_buf_size);
+  const flexid::bus::Channels channels(opt.channel_prefix);
 
   char dir_template[] = "/tmp/daemon_load.XXXXXX";
   if (!mkdtemp(dir_template)) {
@@ -1226,6 +1197,7 @@ int main(int argc, char** argv) {
   config.pin_threads = opt.pin_threads;
   config.database = database;
   config.lcm_url = url;
+  config.channel_prefix = opt.channel_prefix;
   config.log_file = "";
   config.log_level = opt.log_level;
   config.daemon_id = "load";
@@ -1247,7 +1219,7 @@ int main(int argc, char** argv) {
       opt.seconds, kHighV, opt.period_s);
 
   // The subscriber first, so that its socket can be told from the daemon's.
-  Subscriber subscriber(plan, url, opt.tap_deflections);
+  Subscriber subscriber(plan, url, channels, opt.tap_deflections);
   if (!subscriber.Start()) {
     std::fprintf(stderr, "daemon_load: cannot join the LCM bus at %s\n", url.c_str());
     return 1;
@@ -1306,7 +1278,7 @@ int main(int argc, char** argv) {
     return 1;
   }
   subscriber.SetKey(key);
-  Publisher publisher(plan, url, history_start, opt.history_speed, t0, key);
+  Publisher publisher(plan, url, channels, history_start, opt.history_speed, t0, key);
   if (!publisher.good()) {
     std::fprintf(stderr, "daemon_load: the publisher cannot join the bus\n");
     subscriber.Stop();
@@ -1370,7 +1342,7 @@ int main(int argc, char** argv) {
         std::printf("  # identification of %s sent at t = %.1f s: reply after %.0f ms, status %d\n",
                     ActuatorId(a).c_str(), sent_s,
                     1e-6 * static_cast<double>(Since(id.sent, id.reply->received)),
-                    id.reply->reply.status);
+                    id.reply->message.status);
       else
         std::printf("  # identification of %s sent at t = %.1f s: NO REPLY within 120 s\n",
                     ActuatorId(a).c_str(), sent_s);
@@ -1391,8 +1363,8 @@ int main(int argc, char** argv) {
   while (Clock::now() - drain_start < std::chrono::seconds(30)) {
     std::this_thread::sleep_for(std::chrono::milliseconds(200));
     const auto r = subscriber.Call("status", nlohmann::json::object(), std::chrono::seconds(5));
-    if (!r || r->reply.status != flexid::rpc_reply_t::kOk) continue;
-    const auto j = nlohmann::json::parse(r->reply.result_json);
+    if (!r || r->message.status != flexid::rpc_reply_t::kOk) continue;
+    const auto j = nlohmann::json::parse(r->message.result_json);
     status.samples_accepted = j.value("samples_accepted", int64_t{0});
     status.samples_stored = j.value("samples_stored", int64_t{0});
     status.predictions_published = j.value("predictions_published", int64_t{0});
@@ -1650,7 +1622,7 @@ int main(int argc, char** argv) {
       std::printf("  sent at t = %.3f s (%s): NO REPLY within 120 s\n", sent_s, who.c_str());
       continue;
     }
-    const auto& r = id.reply->reply;
+    const auto& r = id.reply->message;
     std::printf(
         "  \"identify\" {actuator %s, latest 1} sent at t = %.3f s, reply after %.1f ms: "
         "status %d%s%s\n",
@@ -1925,7 +1897,7 @@ int main(int argc, char** argv) {
       }
       const double ms = 1e-6 * static_cast<double>(Since(id.sent, id.reply->received));
       durations_ms.push_back(ms);
-      const auto& r = id.reply->reply;
+      const auto& r = id.reply->message;
       ok += r.status == flexid::rpc_reply_t::kOk;
       std::string what = r.error;
       if (r.status == flexid::rpc_reply_t::kOk) {

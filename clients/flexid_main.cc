@@ -3,6 +3,7 @@
 #include <CLI/CLI.hpp>
 #include <iostream>
 
+#include "bus/channels.h"
 #include "clients/cli/bus.h"
 #include "clients/cli/command.h"
 #include "clients/cli/source.h"
@@ -13,7 +14,7 @@ int main(int argc, char** argv) {
   CLI::App app{"flexid: identify, simulate and diagnose models of ionic soft actuators"};
   app.set_version_flag("--version", flexid::kVersion);
   app.require_subcommand(1);
-  app.fallthrough();  // --lcm and --db may also follow the command
+  app.fallthrough();  // --lcm, --channel-prefix and --db may also follow the command
   flexid::cli::RegisterTfCommand(app);
   flexid::cli::RegisterSimulateCommand(app);
   flexid::cli::RegisterPhysicsCommand(app);
@@ -29,6 +30,9 @@ int main(int argc, char** argv) {
   flexid::cli::RegisterBusCommands(app);
   app.add_option("--lcm", flexid::cli::LcmUrl(),
                  "LCM URL of the flexidd bus (default udpm://239.255.76.67:7667?ttl=0)");
+  app.add_option("--channel-prefix", flexid::cli::ChannelPrefix(),
+                 "Channel prefix of the flexidd bus, its channel_prefix (default FLEXID)")
+      ->check([](const std::string& prefix) { return flexid::bus::PrefixProblem(prefix); });
   app.add_option("--key-file", flexid::cli::KeyFilePath(),
                  "Key for requests that change data (default $FLEXID_KEY_FILE, else "
                  "var/flexidd.key)");

@@ -8,10 +8,10 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
-#include <regex>
 #include <set>
 #include <sstream>
 
+#include "bus/channels.h"
 #include "bus/ids.h"
 
 namespace flexid::daemon {
@@ -165,18 +165,16 @@ Config ParseConfigText(std::string_view text, const std::string& path) {
   return c;
 }
 
-// The daemon id and the channel prefix: the id rule, '.' allowed too.
-bool IsValidName(const std::string& id) {
-  static const std::regex pattern("[A-Za-z0-9_.-]{1,64}");
-  return std::regex_match(id, pattern);
-}
-
 void Validate(const Config& c) {
-  if (!IsValidName(c.daemon_id)) Fail("daemon_id", "expected 1-64 characters of [A-Za-z0-9_.-]");
+  // The daemon id follows the prefix's rule: it names this instance in replies and logs.
+  if (!bus::IsValidPrefix(c.daemon_id))
+    Fail("daemon_id",
+         std::string("expected ") + bus::kPrefixRule + " (got \"" + c.daemon_id + "\")");
   if (c.database.empty()) Fail("database", "must not be empty");
   if (c.lcm_url.empty()) Fail("lcm_url", "must not be empty");
-  if (!IsValidName(c.channel_prefix))
-    Fail("channel_prefix", "expected 1-64 characters of [A-Za-z0-9_.-]");
+  if (!bus::IsValidPrefix(c.channel_prefix))
+    Fail("channel_prefix",
+         std::string("expected ") + bus::kPrefixRule + " (got \"" + c.channel_prefix + "\")");
   if (c.commit_interval_ms < 1 || c.commit_interval_ms > 200)
     Fail("commit_interval_ms", "must be 1..200 (DESIGN.md: loss window <= 200 ms)");
   if (!(c.trial_idle_stop_s > 0.0) || !std::isfinite(c.trial_idle_stop_s))

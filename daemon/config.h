@@ -7,6 +7,7 @@
 #include <string_view>
 #include <vector>
 
+#include "bus/channels.h"
 #include "daemon/residual_monitor.h"
 #include "storage/database.h"
 
@@ -48,7 +49,7 @@ struct Config {
   std::string daemon_id = "flexidd";
   std::string database = "var/flexid.db";
   std::string lcm_url = "udpm://239.255.76.67:7667?ttl=0";
-  std::string channel_prefix = "FLEXID";
+  std::string channel_prefix = bus::kDefaultPrefix;  // bus/channels.h
   std::string log_file = "var/flexidd.log";
   std::string log_level = "info";
   int commit_interval_ms = 100;

@@ -35,6 +35,7 @@
 #include <optional>
 #include <thread>
 
+#include "bus/channels.h"
 #include "bus/clock.h"
 #include "bus/ids.h"
 #include "bus/lcm_url.h"
@@ -166,6 +167,7 @@ struct IdentifyResult {
 
 struct Daemon::Impl {
   Config config;
+  bus::Channels channels;  // named from config.channel_prefix
   std::string config_path;
   // The loop's connection: reads only once the loop runs (RPC queries, active models; in
   // WAL mode a reader never waits for a writer). Every write goes through `writer`.
@@ -219,6 +221,7 @@ struct Daemon::Impl {
 
   Impl(Config c, std::string path)
       : config(std::move(c)),
+        channels(config.channel_prefix),
         config_path(std::move(path)),
         db(storage::Database::Open(config.database)),
         verifier(MakeVerifier(config)),
@@ -268,13 +271,14 @@ struct Daemon::Impl {
 
     // LCM keeps at most 30 undispatched messages per subscription by default and drops
     // the rest silently; 16 actuators at 500 Hz need far more between two loop passes.
-    const std::string& p = config.channel_prefix;
-    lcm.subscribeFunction(p + "/.*/VOLTAGE", &Impl::OnVoltageThunk, this)
+    lcm.subscribeFunction(channels.AllVoltages(), &Impl::OnVoltageThunk, this)
         ->setQueueCapacity(kQueueCapacity);
-    lcm.subscribeFunction(p + "/.*/DEFLECTION", &Impl::OnDeflectionThunk, this)
+    lcm.subscribeFunction(channels.AllDeflections(), &Impl::OnDeflectionThunk, this)
         ->setQueueCapacity(kQueueCapacity);
-    lcm.subscribeFunction(p + "/RPC/REQUEST", &Impl::OnRequestThunk, this)->setQueueCapacity(1000);
-    lcm.subscribeFunction(p + "/TRIAL", &Impl::OnTrialControlThunk, this)->setQueueCapacity(1000);
+    lcm.subscribeFunction(bus::Exactly(channels.RpcRequest()), &Impl::OnRequestThunk, this)
+        ->setQueueCapacity(1000);
+    lcm.subscribeFunction(bus::Exactly(channels.TrialControl()), &Impl::OnTrialControlThunk, this)
+        ->setQueueCapacity(1000);
     worker = std::thread([this] { WorkerLoop(); });
   }
 
@@ -479,7 +483,7 @@ struct Daemon::Impl {
     out.trial_id = static_cast<int32_t>(state->trial_id);
     out.memberships = state->predictor.memberships;
     out.num_memberships = static_cast<int16_t>(out.memberships.size());
-    lcm.publish(config.channel_prefix + "/" + message.actuator_id + "/PREDICTION", &out);
+    lcm.publish(channels.Prediction(message.actuator_id), &out);
     ++counters.predictions_published;
     Raise(state, state->monitor->OnDeflection(message.utime, state->voltage_V, residual));
   }
@@ -594,7 +598,7 @@ struct Daemon::Impl {
       out.magnitude_mm = alert.magnitude_mm;
       out.threshold_mm = alert.threshold_mm;
       out.text = alert.text;
-      lcm.publish(config.channel_prefix + "/ALERT", &out);
+      lcm.publish(channels.Alert(), &out);
       ++counters.alerts_raised;
       storage::AlertRecord record{0,
                                   out.actuator_id,
@@ -767,7 +771,7 @@ struct Daemon::Impl {
     reply.status = outcome.status;
     reply.result_json = outcome.result.dump();
     reply.error = outcome.error;
-    lcm.publish(config.channel_prefix + "/RPC/REPLY/" + context.client_id, &reply);
+    lcm.publish(channels.RpcReply(context.client_id), &reply);
   }
 
   RpcOutcome HandleRequest(const flexid::rpc_request_t& request);
@@ -927,7 +931,7 @@ struct Daemon::Impl {
     out.magnitude_mm = 0.0;
     out.threshold_mm = 0.0;
     out.text = text;
-    lcm.publish(config.channel_prefix + "/ALERT", &out);
+    lcm.publish(channels.Alert(), &out);
     ++counters.alerts_raised;
     spdlog::log(severity == 0   ? spdlog::level::info
                 : severity == 1 ? spdlog::level::warn
@@ -1167,7 +1171,7 @@ struct Daemon::Impl {
     for (const auto& [id, state] : actuators) recording += state.trial_id != 0;
     status.trials_recording = recording;
     status.identification_running = identifying ? 1 : 0;
-    lcm.publish(config.channel_prefix + "/STATUS", &status);
+    lcm.publish(channels.Status(), &status);
     if (!writer->last_error().empty())
       spdlog::error("sample writer [error: {}]", writer->last_error());
   }

@@ -1,5 +1,6 @@
-// flexidd [--config FILE] [--db PATH] [--lcm URL] [--key-file PATH]: the flexid lab service. Flags
-// override the file; with no file it runs on the embedded defaults (DESIGN.md).
+// flexidd [--config FILE] [--db PATH] [--lcm URL] [--channel-prefix P] [--key-file PATH]: the
+// flexid lab service. Flags override the file; with no file it runs on the embedded defaults
+// (DESIGN.md).
 #include <pthread.h>
 #include <spdlog/spdlog.h>
 
@@ -19,11 +20,13 @@ int main(int argc, char** argv) {
       "flexidd: records actuator trials from the bus, predicts live, raises alerts, identifies on "
       "demand"};
   app.set_version_flag("--version", flexid::kVersion);
-  std::string config_path, db, lcm_url, log_file, daemon_id, key_file;
+  std::string config_path, db, lcm_url, channel_prefix, log_file, daemon_id, key_file;
   app.add_option("--config", config_path,
                  "TOML configuration file (deploy/flexidd.toml is an example)");
   app.add_option("--db", db, "SQLite database file (default var/flexid.db)");
   app.add_option("--lcm", lcm_url, "LCM URL (default udpm://239.255.76.67:7667?ttl=0)");
+  app.add_option("--channel-prefix", channel_prefix,
+                 "Prefix of every channel, the clients' --channel-prefix (default FLEXID)");
   app.add_option("--log-file", log_file, "Rotating log file (default var/flexidd.log)");
   app.add_option("--daemon-id", daemon_id, "Name of this instance on the bus");
   app.add_option("--key-file", key_file,
@@ -45,6 +48,7 @@ int main(int argc, char** argv) {
     if (!config_path.empty()) config = flexid::daemon::LoadConfigFile(config_path);
     if (!db.empty()) config.database = db;
     if (!lcm_url.empty()) config.lcm_url = lcm_url;
+    if (!channel_prefix.empty()) config.channel_prefix = channel_prefix;  // Validate checks it
     if (!log_file.empty()) config.log_file = log_file;
     if (!daemon_id.empty()) config.daemon_id = daemon_id;
     if (!key_file.empty()) config.auth_key_file = key_file;

@@ -58,6 +58,12 @@ TEST(Config, BadFilesAreNamedWithTheProblem) {
   const std::string dotted = ErrorOf(write("dot.toml", "[[actuators]]\nid = \"S.1\"\n"));
   EXPECT_NE(dotted.find("id \"S.1\": expected 1 to 64 of A-Z a-z 0-9 _ -"), std::string::npos)
       << dotted;
+  // The channel prefix: the clients' --channel-prefix rule (bus/channels.h), '.' allowed.
+  EXPECT_EQ(ErrorOf(write("prefix.toml", "channel_prefix = \"lab.2\"\n")), "no error");
+  const std::string slashed = ErrorOf(write("slash.toml", "channel_prefix = \"lab/2\"\n"));
+  EXPECT_NE(slashed.find("channel_prefix: expected 1 to 64 of A-Z a-z 0-9 _ . - (got \"lab/2\")"),
+            std::string::npos)
+      << slashed;
   EXPECT_NE(ErrorOf(write("geom.toml", "[[actuators]]\nid = \"S1\"\nlength_mm = -4\n"))
                 .find("dimensions"),
             std::string::npos);

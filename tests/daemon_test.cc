@@ -12,10 +12,12 @@
 #include <flexid/rpc_request_t.hpp>
 #include <iostream>
 #include <lcm/lcm-cpp.hpp>
+#include <map>
 #include <nlohmann/json.hpp>
 #include <random>
 #include <thread>
 
+#include "bus/channels.h"
 #include "bus/clock.h"
 #include "cli_process.h"
 #include "lcmtypes/message_auth.h"
@@ -28,6 +30,7 @@ namespace {
 using namespace std::chrono_literals;
 
 const std::string kRig = FLEXID_RIG_BINARY;
+const std::string kFlexid = FLEXID_BINARY;
 
 std::string RandomUrl() {
   std::random_device device;
@@ -219,6 +222,117 @@ TEST_F(DaemonEndToEnd, RecordsIdentifiesPredictsAndFlagsBackRelaxation) {
   ASSERT_TRUE(bad.has_value());
   EXPECT_EQ(bad->status, flexid::rpc_reply_t::kBadRequest);
   EXPECT_NE(bad->error.find("trial"), std::string::npos) << bad->error;
+}
+
+// Counts what arrives on the channels it subscribes to, by channel.
+struct ChannelCounter {
+  std::map<std::string, int64_t> by_channel;
+  void On(const lcm::ReceiveBuffer*, const std::string& channel) { ++by_channel[channel]; }
+  int64_t Total() const {
+    int64_t n = 0;
+    for (const auto& [channel, count] : by_channel) n += count;
+    return n;
+  }
+};
+
+// Runs a daemon's loop on a thread of its own until destroyed, however the test ends (an
+// ASSERT returns early).
+class LoopThread {
+ public:
+  explicit LoopThread(daemon::Daemon& daemon)
+      : thread_([this, &daemon] {
+          while (running_) daemon.RunOnce(20);
+        }) {}
+  ~LoopThread() {
+    running_ = false;
+    thread_.join();
+  }
+  LoopThread(const LoopThread&) = delete;
+  LoopThread& operator=(const LoopThread&) = delete;
+
+ private:
+  std::atomic<bool> running_{true};
+  std::thread thread_;
+};
+
+// flexidd with a channel prefix of its own, holding a '.' (which a subscription reads as a
+// regular expression): the rig, `flexid trials import` and the command line's RPC reach it
+// when given --channel-prefix, and nothing is published on, or answered from, FLEXID/.
+TEST(DaemonChannelPrefix, RigImportAndCommandLineFollowThePrefix) {
+  const testing::ScratchDir scratch;
+  const std::string url = RandomUrl();
+  const bus::Channels channels("lab.7");
+  lcm::LCM lcm(url);
+  if (!lcm.good()) GTEST_SKIP() << "no LCM multicast on this host (" << url << ")";
+  ChannelCounter predictions, standard;
+  lcm.subscribe(channels.AllPredictions(), &ChannelCounter::On, &predictions)
+      ->setQueueCapacity(1 << 14);
+  lcm.subscribe("FLEXID/.*", &ChannelCounter::On, &standard)->setQueueCapacity(1 << 14);
+
+  daemon::Config config;
+  config.database = scratch.File("flexid.db");
+  config.lcm_url = url;
+  config.channel_prefix = "lab.7";
+  config.log_file = "";
+  config.daemon_id = "prefixed";
+  daemon::Validate(config);
+  daemon::Daemon daemon(config);
+  const std::string key_file = daemon::KeyFilePath(config);
+  const LoopThread loop(daemon);
+  const auto pump = [&](std::chrono::milliseconds duration) {
+    const auto end = std::chrono::steady_clock::now() + duration;
+    while (std::chrono::steady_clock::now() < end) lcm.handleTimeout(20);
+  };
+  const std::string flexid = kFlexid + " --lcm '" + url + "' --key-file '" + key_file + "' ";
+
+  // The rig on lab.7/S1/...: 300 samples in a trial of its own.
+  const auto rig = testing::RunCommand(
+      kRig + " --lcm '" + url + "' --channel-prefix lab.7 --actuator S1 --protocol " +
+          "step:level=2,duration=30 --speed 100 --noise-mm 0.02 --trial-control --key-file '" +
+          key_file + "' --start-utime 1000000000000",
+      scratch.path());
+  EXPECT_EQ(rig.exit_code, 0) << rig.err;
+  pump(1000ms);
+  EXPECT_GT(predictions.by_channel["lab.7/S1/PREDICTION"], 250);  // UDP may drop a few
+
+  // `trials import` replays a recording onto lab.7/S2/... and reads its progress over RPC.
+  const std::string csv = scratch.File("s2.csv");
+  const auto recording = testing::RunCommand(
+      kRig + " --out '" + csv + "' --protocol step:level=3,duration=20 --noise-mm 0.02",
+      scratch.path());
+  ASSERT_EQ(recording.exit_code, 0) << recording.err;
+  const auto import = testing::RunCommand(flexid + "--channel-prefix lab.7 trials import '" + csv +
+                                              "' --actuator S2 --start-utime 2000000000000 --json",
+                                          scratch.path());
+  ASSERT_EQ(import.exit_code, 0) << import.err;
+  const auto imported = nlohmann::json::parse(import.out);
+  ASSERT_EQ(imported.at("trials").size(), 1u) << import.out;
+  EXPECT_EQ(imported["trials"][0].at("samples"), 200) << import.out;
+  pump(500ms);
+  EXPECT_GE(predictions.by_channel["lab.7/S2/PREDICTION"], 190);
+
+  // Read-only RPC through the same prefix: both trials are listed by flexidd.
+  const auto list =
+      testing::RunCommand(flexid + "trials list --json --channel-prefix lab.7", scratch.path());
+  ASSERT_EQ(list.exit_code, 0) << list.err;
+  const auto trials = nlohmann::json::parse(list.out);
+  ASSERT_EQ(trials.size(), 2u) << list.out;
+  for (const auto& t : trials) EXPECT_EQ(t.at("state"), "complete") << list.out;
+
+  // Nothing went to FLEXID/ (a status heartbeat would have by now), and on the default
+  // prefix nobody answers: only the request itself is heard there.
+  pump(1200ms);
+  EXPECT_EQ(standard.Total(), 0) << standard.by_channel.begin()->first;
+  const auto unprefixed = testing::RunCommand(flexid + "rpc status --timeout 1", scratch.path());
+  EXPECT_EQ(unprefixed.exit_code, 1) << unprefixed.out;
+  EXPECT_NE(unprefixed.err.find("no flexidd answered"), std::string::npos) << unprefixed.err;
+  pump(200ms);
+  EXPECT_EQ(standard.by_channel["FLEXID/RPC/REQUEST"], 1);  // the subscription does hear
+  EXPECT_EQ(standard.Total(), 1) << standard.by_channel.rbegin()->first;
+  const auto bad_prefix =
+      testing::RunCommand(flexid + "--channel-prefix 'lab/7' rpc status", scratch.path());
+  EXPECT_EQ(bad_prefix.exit_code, 2) << bad_prefix.err;
+  EXPECT_NE(bad_prefix.err.find(bus::kPrefixRule), std::string::npos) << bad_prefix.err;
 }
 
 }  // namespace

@@ -3,9 +3,9 @@
 //   flexid alerts list [--actuator ID] [--since-utime U] [--limit N] [--json]
 //       stored alerts, newest first, from flexidd (online) or the --db file
 //   flexid alerts follow [--actuator ID] [--kind K] [--seconds S] [--json]
-//       online only: each alert on FLEXID/ALERT as it arrives, one line each, until S seconds
-//       have passed or SIGINT/SIGTERM (exit 0). With --json every line is one JSON object
-//       (JSON Lines): the one exception to "--json prints one document", since the stream
+//       online only: each alert on PREFIX/ALERT (--channel-prefix) as it arrives, one line each,
+//       until S seconds have passed or SIGINT/SIGTERM (exit 0). With --json every line is one JSON
+//       object (JSON Lines): the one exception to "--json prints one document", since the stream
 //       has no end. Its objects have the shape of `alerts list --json` items without "id"
 //       (a live alert has no stored id yet).
 #include <chrono>
@@ -134,7 +134,8 @@ void RunFollow(const FollowArgs& args) {
   if (!lcm.good()) throw OperationError("cannot join the LCM bus at " + LcmUrl());
   Follower follower{args, 0};
   const StopOnSignal stop;
-  lcm.subscribeFunction("FLEXID/ALERT", &Follower::OnAlert, &follower)->setQueueCapacity(1000);
+  lcm.subscribeFunction(bus::Exactly(BusChannels().Alert()), &Follower::OnAlert, &follower)
+      ->setQueueCapacity(1000);
   const auto end = std::chrono::steady_clock::now() +
                    std::chrono::milliseconds(static_cast<int64_t>(args.seconds.value_or(0) * 1000));
   while (!stop.requested() && (!args.seconds || std::chrono::steady_clock::now() < end))

@@ -2,15 +2,12 @@
 
 #include <unistd.h>
 
-#include <flexid/rpc_reply_t.hpp>
-#include <flexid/rpc_request_t.hpp>
 #include <lcm/lcm-cpp.hpp>
 #include <optional>
-#include <random>
 
 #include "bus/lcm_url.h"
+#include "bus/rpc_client.h"
 #include "clients/cli/command.h"
-#include "lcmtypes/wire_check.h"
 
 namespace flexid::cli {
 
@@ -18,6 +15,13 @@ std::string& LcmUrl() {
   static std::string url = "udpm://239.255.76.67:7667?ttl=0";
   return url;
 }
+
+std::string& ChannelPrefix() {
+  static std::string prefix = bus::kDefaultPrefix;
+  return prefix;
+}
+
+bus::Channels BusChannels() { return bus::Channels(ChannelPrefix()); }
 
 std::string& KeyFilePath() {
   static std::string path;
@@ -40,25 +44,6 @@ const auth::Key& SigningKey() {
 
 namespace {
 
-struct ReplyCatcher {
-  std::string request_id;
-  std::optional<flexid::rpc_reply_t> reply;
-  static void On(const lcm::ReceiveBuffer* rbuf, const std::string&, ReplyCatcher* self) {
-    flexid::rpc_reply_t r;
-    if (r.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) > 0 &&
-        r.request_id == self->request_id)
-      self->reply = r;
-  }
-};
-
-std::string RandomToken() {
-  std::random_device device;
-  std::uniform_int_distribution<uint64_t> any;
-  char text[17];
-  std::snprintf(text, sizeof text, "%016llx", static_cast<unsigned long long>(any(device)));
-  return text;
-}
-
 // A page of trial samples is up to ~1 MB of JSON, sent as one burst of fragments: a
 // receive buffer that holds a whole reply, so that a busy machine does not drop a fragment
 // (and with it the reply) before this process reads it.
@@ -71,30 +56,19 @@ RpcResult CallDaemon(const std::string& method, const nlohmann::json& args,
   const auth::Key* key = auth::ChangesData(method) ? &SigningKey() : nullptr;
   lcm::LCM lcm(bus::WithReceiveBuffer(LcmUrl(), kReceiveBufferBytes));
   if (!lcm.good()) throw OperationError("cannot join the LCM bus at " + LcmUrl());
-  const std::string client_id = "cli-" + std::to_string(getpid());
-  ReplyCatcher catcher{RandomToken(), std::nullopt};
-  lcm.subscribeFunction("FLEXID/RPC/REPLY/" + client_id, &ReplyCatcher::On, &catcher);
-  flexid::rpc_request_t request;
-  request.utime = std::chrono::duration_cast<std::chrono::microseconds>(
-                      std::chrono::system_clock::now().time_since_epoch())
-                      .count();
-  request.request_id = catcher.request_id;
-  request.client_id = client_id;
-  request.method = method;
-  request.args_json = args.dump();
-  request.nonce = auth::RandomNonce();
-  if (key) auth::Sign(*key, &request);
-  lcm.publish("FLEXID/RPC/REQUEST", &request);
-  const auto end = std::chrono::steady_clock::now() + timeout;
-  while (!catcher.reply && std::chrono::steady_clock::now() < end) lcm.handleTimeout(50);
-  if (!catcher.reply)
-    throw OperationError("no flexidd answered \"" + method + "\" on " + LcmUrl() + " within " +
-                         std::to_string(timeout.count() / 1000) + " s");
+  bus::RpcClient client(lcm, BusChannels(), "cli-" + std::to_string(getpid()), key);
+  const std::optional<bus::RpcReply> reply = client.Call(method, args.dump(), timeout);
+  if (!reply)
+    throw OperationError("no flexidd answered \"" + method + "\" on " + LcmUrl() +
+                         (ChannelPrefix() == bus::kDefaultPrefix
+                              ? ""
+                              : " (channel prefix " + ChannelPrefix() + ")") +
+                         " within " + std::to_string(timeout.count() / 1000) + " s");
   RpcResult out;
-  out.status = catcher.reply->status;
-  out.error = catcher.reply->error;
-  out.daemon_id = catcher.reply->daemon_id;
-  out.result = nlohmann::json::parse(catcher.reply->result_json, nullptr, false);
+  out.status = reply->message.status;
+  out.error = reply->message.error;
+  out.daemon_id = reply->message.daemon_id;
+  out.result = nlohmann::json::parse(reply->message.result_json, nullptr, false);
   return out;
 }
 

@@ -1,5 +1,6 @@
-// The flexid command line on the bus: the LCM URL chosen with the global --lcm option,
-// and a blocking RPC call to flexidd (DESIGN.md: FLEXID/RPC/REQUEST -> FLEXID/RPC/REPLY/<client>).
+// The flexid command line on the bus: the LCM URL and the channel prefix chosen with the
+// global --lcm and --channel-prefix options, and a blocking RPC call to flexidd
+// (bus/rpc_client.h: PREFIX/RPC/REQUEST -> PREFIX/RPC/REPLY/<client>).
 #pragma once
 
 #include <signal.h>
@@ -8,12 +9,19 @@
 #include <nlohmann/json.hpp>
 #include <string>
 
+#include "bus/channels.h"
 #include "lcmtypes/message_auth.h"
 
 namespace flexid::cli {
 
 // Default as in DESIGN.md; set by main() from --lcm.
 std::string& LcmUrl();
+
+// The channel prefix, flexidd's channel_prefix (default FLEXID); set by main() from
+// --channel-prefix, which checks it against bus::IsValidPrefix.
+std::string& ChannelPrefix();
+// The channels named from ChannelPrefix().
+bus::Channels BusChannels();
 
 // The --key-file option (empty: $FLEXID_KEY_FILE, else var/flexidd.key); set by main().
 std::string& KeyFilePath();

@@ -79,9 +79,11 @@ void RunWatch(const WatchArgs& args) {
   lcm::LCM lcm(LcmUrl());
   if (!lcm.good()) throw OperationError("cannot join the LCM bus at " + LcmUrl());
   Watcher watcher{args, {}};
-  lcm.subscribeFunction("FLEXID/.*/PREDICTION", &Watcher::OnPrediction, &watcher)
+  const bus::Channels channels = BusChannels();
+  lcm.subscribeFunction(channels.AllPredictions(), &Watcher::OnPrediction, &watcher)
       ->setQueueCapacity(1 << 16);
-  lcm.subscribeFunction("FLEXID/ALERT", &Watcher::OnAlert, &watcher)->setQueueCapacity(1000);
+  lcm.subscribeFunction(bus::Exactly(channels.Alert()), &Watcher::OnAlert, &watcher)
+      ->setQueueCapacity(1000);
   const auto end = std::chrono::steady_clock::now() +
                    std::chrono::milliseconds(static_cast<int64_t>(args.seconds * 1000));
   while (std::chrono::steady_clock::now() < end) lcm.handleTimeout(50);

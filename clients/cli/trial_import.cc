@@ -272,9 +272,9 @@ ImportPlan PlanFromLcmLog(const std::string& path, const PlanOptions& options) {
   plan.source = path;
   plan.format = "lcmlog";
   LogCounts& counts = plan.log;
-  const std::string voltage_channel = "FLEXID/" + options.actuator + "/VOLTAGE";
-  const std::string deflection_channel = "FLEXID/" + options.actuator + "/DEFLECTION";
-  const std::string trial_channel = "FLEXID/TRIAL";
+  const std::string voltage_channel = options.channels.Voltage(options.actuator);
+  const std::string deflection_channel = options.channels.Deflection(options.actuator);
+  const std::string trial_channel = options.channels.TrialControl();
 
   // Pass 1: the accepted messages in log order, and the trial controls between them.
   std::vector<BusSample> messages;

@@ -37,6 +37,7 @@
 #include <string>
 #include <vector>
 
+#include "bus/channels.h"
 #include "model/recording.h"
 #include "storage/database.h"
 
@@ -115,6 +116,7 @@ struct PlanOptions {
   std::optional<std::string> protocol;  // overrides the file's
   std::optional<int64_t> start_utime;   // the (first) trial starts here; everything shifts
   int64_t now_utime = 0;                // CSV without start: the trial starts now
+  bus::Channels channels;               // lcmlog: the channels it was recorded on
 };
 
 // True if the file starts with the LCM log magic 0xEDA1DA01 (big-endian), whatever its name.
@@ -124,11 +126,12 @@ bool IsLcmLog(const std::string& path);
 // ReadRecordingCsv's messages) or for samples closer than 1 us or times out of range.
 ImportPlan PlanFromCsv(const std::string& path, const PlanOptions& options);
 
-// The voltage and deflection messages of one actuator in an lcm-logger log, validated
+// The voltage and deflection messages of one actuator in an lcm-logger log, on the
+// channels options.channels names (PREFIX/<actuator>/VOLTAGE, ...), validated
 // (wire::WellFormed, then decode) and split into trials at that actuator's trial_control2_t
-// (or, in older logs, trial_control_t) messages; without any, the whole log is one trial from its first to its last message.
-// Deflections outside a trial are dropped, as flexidd drops them; trials without a
-// deflection are left out. Throws model::InputError when the file cannot be read or holds
+// (or, in older logs, trial_control_t) messages; without any, the whole log is one trial from its
+// first to its last message. Deflections outside a trial are dropped, as flexidd drops them; trials
+// without a deflection are left out. Throws model::InputError when the file cannot be read or holds
 // no deflection of the actuator.
 ImportPlan PlanFromLcmLog(const std::string& path, const PlanOptions& options);
 

@@ -10,8 +10,9 @@
 //   flexid trials stop --actuator ID [--json]                         (online only)
 //
 // Import stores the file straight into the --db file (trial_import.h), or, online, replays
-// it onto the bus as the virtual rig does: signed trial_control2_t start on FLEXID/TRIAL,
-// voltage_sample_t and deflection_sample_t on FLEXID/<ID>/VOLTAGE and /DEFLECTION, stop.
+// it onto the bus as the virtual rig does (bus/sample_publisher.h): signed trial_control2_t
+// start on PREFIX/TRIAL, voltage_sample_t and deflection_sample_t on PREFIX/<ID>/VOLTAGE
+// and /DEFLECTION, stop (PREFIX: the global --channel-prefix, default FLEXID).
 // It publishes chunks of kReplayChunk deflections and lets at most kReplayWindow of them
 // wait for flexidd's commit (the trial's stored count, asked over RPC) before sending
 // more, so that neither the UDP socket nor flexidd's queues overflow; then it checks that
@@ -24,9 +25,6 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
-#include <flexid/deflection_sample_t.hpp>
-#include <flexid/trial_control2_t.hpp>
-#include <flexid/voltage_sample_t.hpp>
 #include <iostream>
 #include <lcm/lcm-cpp.hpp>
 #include <limits>
@@ -35,6 +33,7 @@
 
 #include "bus/clock.h"
 #include "bus/ids.h"
+#include "bus/sample_publisher.h"
 #include "clients/cli/bus.h"
 #include "clients/cli/command.h"
 #include "clients/cli/format.h"
@@ -278,51 +277,32 @@ void RunExport(const ExportArgs& args) {
 
 // --- import: on the bus ------------------------------------------------------------------
 
-// Publishes one actuator's messages, as flexid-rig's LcmSink does; trial control is signed
-// (lcmtypes/message_auth.h), so the key is read first, before anything is sent.
+// Replays one actuator's messages (bus/sample_publisher.h, as flexid-rig publishes them)
+// and counts those LCM could not send. Trial control is signed, so the key is read first,
+// before the bus is joined and anything is sent.
 class Publisher {
  public:
   explicit Publisher(const std::string& actuator)
-      : key_(SigningKey()),
-        lcm_(LcmUrl()),
-        actuator_(actuator),
-        voltage_channel_("FLEXID/" + actuator + "/VOLTAGE"),
-        deflection_channel_("FLEXID/" + actuator + "/DEFLECTION") {
+      : key_(SigningKey()), lcm_(LcmUrl()), publisher_(lcm_, BusChannels(), actuator, &key_) {
     if (!lcm_.good()) throw OperationError("cannot join the LCM bus at " + LcmUrl());
   }
   void Sample(const BusSample& m) {
-    int status = 0;
-    if (m.is_voltage) {
-      flexid::voltage_sample_t message;
-      message.utime = m.utime;
-      message.actuator_id = actuator_;
-      message.voltage_V = m.value;
-      status = lcm_.publish(voltage_channel_, &message);
-    } else {
-      flexid::deflection_sample_t message;
-      message.utime = m.utime;
-      message.actuator_id = actuator_;
-      message.deflection_mm = m.value;
-      status = lcm_.publish(deflection_channel_, &message);
-    }
-    if (status != 0) ++failed_;
+    const bool sent = m.is_voltage ? publisher_.PublishVoltage(m.utime, m.value)
+                                   : publisher_.PublishDeflection(m.utime, m.value);
+    if (!sent) ++failed_;
   }
+  // utime is the recording's message time.
   void Control(int64_t utime, bool start, const std::string& protocol) {
-    flexid::trial_control2_t message;
-    message.utime = utime;
-    message.actuator_id = actuator_;
-    message.action = start ? flexid::trial_control2_t::kStart : flexid::trial_control2_t::kStop;
-    message.protocol = protocol;
-    message.sent_utime = bus::WallClockUtime();  // utime is the recording's message time
-    auth::Sign(key_, &message);
-    if (lcm_.publish("FLEXID/TRIAL", &message) != 0) ++failed_;
+    if (!publisher_.PublishTrialControl(
+            utime, start ? bus::TrialAction::kStart : bus::TrialAction::kStop, protocol))
+      ++failed_;
   }
   int64_t failed() const { return failed_; }
 
  private:
   const auth::Key& key_;
   lcm::LCM lcm_;
-  std::string actuator_, voltage_channel_, deflection_channel_;
+  bus::SamplePublisher publisher_;
   int64_t failed_ = 0;
 };
 
@@ -565,6 +545,7 @@ void RunImport(const ImportArgs& args) {
   options.protocol = args.protocol;
   options.start_utime = args.start_utime;
   options.now_utime = bus::WallClockUtime();
+  options.channels = BusChannels();  // a log recorded under that prefix
   // The whole file is read and checked before anything is written or sent.
   const ImportPlan plan =
       IsLcmLog(args.file) ? PlanFromLcmLog(args.file, options) : PlanFromCsv(args.file, options);

@@ -5,50 +5,37 @@
 #include <unistd.h>
 
 #include <algorithm>
-#include <cstdio>
 #include <flexid/alert_t.hpp>
 #include <flexid/prediction_t.hpp>
 #include <flexid/rpc_reply_t.hpp>
 #include <flexid/rpc_request_t.hpp>
 
-#include "bus/clock.h"
+#include "bus/rpc_client.h"
 #include "lcmtypes/wire_check.h"
 
 namespace flexid::dashboard {
 
-namespace {
-
-constexpr char kPredictionChannels[] = "FLEXID/.*/PREDICTION";
-constexpr char kAlertChannel[] = "FLEXID/ALERT";
-constexpr char kRequestChannel[] = "FLEXID/RPC/REQUEST";
-
-}  // namespace
-
 BusAdapter::BusAdapter(lcm::LCM& lcm, LiveStore& store, BusOptions options)
-    : lcm_(lcm), store_(store), options_(std::move(options)), random_(std::random_device{}()) {
+    : lcm_(lcm), store_(store), options_(std::move(options)), channels_(options_.channel_prefix) {
   if (options_.client_id.empty())
-    options_.client_id = "dashboard-" + std::to_string(getpid()) + "-" + RandomToken().substr(0, 8);
+    options_.client_id =
+        "dashboard-" + std::to_string(getpid()) + "-" + bus::RandomRequestId().substr(0, 8);
   // Queues as deep as `flexid watch` uses: a burst of 16 x 500 Hz predictions must not
   // be dropped by LCM before the loop gets to it.
   subscriptions_.push_back(
-      lcm_.subscribeFunction(kPredictionChannels, &BusAdapter::OnPrediction, this));
+      lcm_.subscribeFunction(channels_.AllPredictions(), &BusAdapter::OnPrediction, this));
   subscriptions_.back()->setQueueCapacity(1 << 16);
-  subscriptions_.push_back(lcm_.subscribeFunction(kAlertChannel, &BusAdapter::OnAlert, this));
-  subscriptions_.back()->setQueueCapacity(1000);
   subscriptions_.push_back(
-      lcm_.subscribeFunction("FLEXID/RPC/REPLY/" + options_.client_id, &BusAdapter::OnReply, this));
+      lcm_.subscribeFunction(bus::Exactly(channels_.Alert()), &BusAdapter::OnAlert, this));
+  subscriptions_.back()->setQueueCapacity(1000);
+  subscriptions_.push_back(lcm_.subscribeFunction(
+      bus::Exactly(channels_.RpcReply(options_.client_id)), &BusAdapter::OnReply, this));
   subscriptions_.back()->setQueueCapacity(100);
   next_batch_ = Clock::now() + options_.batch_interval;
 }
 
 BusAdapter::~BusAdapter() {
   for (lcm::Subscription* s : subscriptions_) lcm_.unsubscribe(s);
-}
-
-std::string BusAdapter::RandomToken() {
-  char text[17];
-  std::snprintf(text, sizeof text, "%016llx", static_cast<unsigned long long>(random_()));
-  return text;
 }
 
 // Nothing may throw through LCM's C callback: each handler catches at the edge and counts.
@@ -81,7 +68,7 @@ void BusAdapter::HandlePrediction(const lcm::ReceiveBuffer* rbuf, const std::str
   flexid::prediction_t message;
   if (!wire::WellFormed(rbuf->data, rbuf->data_size, wire::kPrediction) ||
       message.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) <= 0 ||
-      channel != "FLEXID/" + message.actuator_id + "/PREDICTION") {
+      channel != channels_.Prediction(message.actuator_id)) {
     store_.CountBadMessage();
     return;
   }
@@ -117,12 +104,12 @@ void BusAdapter::HandleAlert(const lcm::ReceiveBuffer* rbuf) {
 }
 
 void BusAdapter::HandleReply(const lcm::ReceiveBuffer* rbuf) {
-  flexid::rpc_reply_t reply;
-  if (!wire::WellFormed(rbuf->data, rbuf->data_size, wire::kRpcReply) ||
-      reply.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) <= 0) {
+  const std::optional<flexid::rpc_reply_t> decoded = bus::DecodeReply(*rbuf);
+  if (!decoded) {
     store_.CountBadMessage();
     return;
   }
+  const flexid::rpc_reply_t& reply = *decoded;
   const auto it = pending_.find(reply.request_id);
   if (it == pending_.end()) return;  // expired, or another dashboard's
   const PendingCall call = it->second;
@@ -167,16 +154,12 @@ void BusAdapter::MaybeFetchModel(const std::string& actuator_id, int32_t version
 
 void BusAdapter::SendRequest(const std::string& method, const nlohmann::json& args,
                              PendingCall call) {
-  flexid::rpc_request_t request;
-  request.utime = bus::WallClockUtime();
-  request.request_id = RandomToken();
-  request.client_id = options_.client_id;
-  request.method = method;
-  request.args_json = args.dump();
-  request.nonce = RandomToken();
+  // Read-only methods only: the dashboard holds no key.
+  const flexid::rpc_request_t request =
+      bus::MakeRequest(options_.client_id, bus::RandomRequestId(), method, args.dump(), nullptr);
   call.deadline = Clock::now() + options_.rpc_timeout;
   pending_[request.request_id] = std::move(call);
-  lcm_.publish(kRequestChannel, &request);
+  lcm_.publish(channels_.RpcRequest(), &request);
   ++rpc_requests_sent_;
 }
 

@@ -1,10 +1,13 @@
-// The dashboard on the bus: subscribes to FLEXID/<actuator>/PREDICTION and FLEXID/ALERT,
+// The dashboard on the bus: subscribes to PREFIX/<actuator>/PREDICTION and PREFIX/ALERT
+// (bus/channels.h; PREFIX is flexidd's channel_prefix, default FLEXID),
 // validates every message (lcmtypes/wire_check.h) before decoding it, and feeds the live
 // store (live_store.h). Bad messages are counted there and ignored.
 //
-// It also asks flexidd over RPC (FLEXID/RPC/REQUEST -> FLEXID/RPC/REPLY/<client_id>), without
-// ever waiting for a reply: "alerts" once at start-up (repeated until a daemon answers),
-// and "model" {"actuator", "version"} whenever a prediction shows a model version the
+// It also asks flexidd over RPC (PREFIX/RPC/REQUEST -> PREFIX/RPC/REPLY/<client_id>), without
+// ever waiting for a reply, so bus::RpcClient's blocking Call does not fit: requests are
+// built with bus::MakeRequest and replies checked with bus::DecodeReply, and the table of
+// requests in flight is this adapter's: "alerts" once at start-up (repeated until a daemon
+// answers), and "model" {"actuator", "version"} whenever a prediction shows a model version the
 // store has no summary of yet. Replies are handled as they arrive in the same loop;
 // requests without a reply expire and are sent again after a pause.
 //
@@ -17,14 +20,15 @@
 #include <cstdint>
 #include <lcm/lcm-cpp.hpp>
 #include <map>
-#include <random>
 #include <string>
 
+#include "bus/channels.h"
 #include "clients/dashboard/live_store.h"
 
 namespace flexid::dashboard {
 
 struct BusOptions {
+  std::string channel_prefix = bus::kDefaultPrefix;  // flexidd's (bus::IsValidPrefix)
   std::string client_id;  // names the reply channel; empty: "dashboard-<pid>-<random>"
   std::chrono::milliseconds batch_interval{150};  // how often points go to the pages
   std::chrono::milliseconds rpc_timeout{3000};    // a request without a reply expires
@@ -34,7 +38,8 @@ struct BusOptions {
 
 class BusAdapter {
  public:
-  // Subscribes on `lcm`; `lcm` and `store` must outlive the adapter.
+  // Subscribes on `lcm`; `lcm` and `store` must outlive the adapter. Throws
+  // std::invalid_argument for a channel prefix that breaks bus::IsValidPrefix.
   BusAdapter(lcm::LCM& lcm, LiveStore& store, BusOptions options = {});
   ~BusAdapter();
   BusAdapter(const BusAdapter&) = delete;
@@ -74,12 +79,11 @@ class BusAdapter {
   void MaybeFetchModel(const std::string& actuator_id, int32_t version);
   void SendRequest(const std::string& method, const nlohmann::json& args, PendingCall call);
   void Tick(Clock::time_point now);
-  std::string RandomToken();
 
   lcm::LCM& lcm_;
   LiveStore& store_;
   BusOptions options_;
-  std::mt19937_64 random_;
+  bus::Channels channels_;
   std::vector<lcm::Subscription*> subscriptions_;
   std::map<std::string, PendingCall> pending_;  // by request id
   std::map<std::string, ModelFetch> models_;    // by actuator

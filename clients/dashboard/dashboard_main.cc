@@ -1,9 +1,10 @@
 // flexid-dashboard: the live web page of flexid's predictions and alerts (DESIGN.md,
 // "Command lines").
 //
-//   flexid-dashboard [--lcm URL] [--listen 127.0.0.1:8080]
+//   flexid-dashboard [--lcm URL] [--channel-prefix FLEXID] [--listen 127.0.0.1:8080]
 //
-// Subscribes to FLEXID/<actuator>/PREDICTION and FLEXID/ALERT (bus.h), keeps the recent
+// Subscribes to PREFIX/<actuator>/PREDICTION and PREFIX/ALERT (bus.h; PREFIX is flexidd's
+// channel_prefix), keeps the recent
 // points, alerts and model summaries (live_store.h) and serves the page at / with a
 // server-sent event stream (server.h). The page and uPlot are compiled in: no files and no
 // network are needed at run time.
@@ -22,6 +23,7 @@
 #include <string>
 #include <thread>
 
+#include "bus/channels.h"
 #include "clients/dashboard/bus.h"
 #include "clients/dashboard/listen_address.h"
 #include "clients/dashboard/live_store.h"
@@ -33,6 +35,7 @@ namespace {
 
 struct DashboardArgs {
   std::string lcm_url = "udpm://239.255.76.67:7667?ttl=0";
+  std::string channel_prefix = bus::kDefaultPrefix;
   std::string listen = "127.0.0.1:8080";
 };
 
@@ -59,7 +62,9 @@ int RunDashboard(const DashboardArgs& args) {
     return 1;
   }
   LiveStore store;
-  BusAdapter bus(lcm, store);
+  BusOptions bus_options;
+  bus_options.channel_prefix = args.channel_prefix;
+  BusAdapter bus(lcm, store, bus_options);
   ServerOptions server_options;
   server_options.host = listen->host;
   server_options.port = listen->port;
@@ -100,6 +105,10 @@ int main(int argc, char** argv) {
   flexid::dashboard::DashboardArgs args;
   app.add_option("--lcm", args.lcm_url, "LCM URL of the bus flexidd publishes on")
       ->capture_default_str();
+  app.add_option("--channel-prefix", args.channel_prefix,
+                 "Channel prefix of the bus, flexidd's channel_prefix")
+      ->capture_default_str()
+      ->check([](const std::string& prefix) { return flexid::bus::PrefixProblem(prefix); });
   app.add_option("--listen", args.listen,
                  "HOST:PORT to serve on; port 0 picks a free one (the printed URL names it)")
       ->capture_default_str();

@@ -1,6 +1,7 @@
 // flexid-rig: a virtual actuator on the bus (DESIGN.md, "Command lines"), or offline.
 //
-//   flexid-rig --lcm URL --actuator ID[,ID...]... --protocol SPEC [--speed X] [--rate-hz 10]
+//   flexid-rig --lcm URL [--channel-prefix FLEXID] --actuator ID[,ID...]... --protocol SPEC
+//              [--speed X] [--rate-hz 10]
 //              [--model MODEL.json] [--effect [ID/]NAME[:k=v,...]]... [--noise-mm SIGMA]
 //              [--seed N] [--start-utime U] [--trial-control [--key-file PATH]]
 //   flexid-rig --out FILE.csv [--actuator ID[,ID...]]... --protocol SPEC [--rate-hz 10]
@@ -9,11 +10,13 @@
 //
 // Simulates the actuator's deflection for a voltage protocol (protocol.h) with the seed's
 // T-S model or a model file, adds effects (effects.h) and sensor noise (rig.h), and
-// publishes flexid::voltage_sample_t on FLEXID/<ID>/VOLTAGE and flexid::deflection_sample_t
-// on FLEXID/<ID>/DEFLECTION in message time (runner.h); with --trial-control also
-// flexid::trial_control2_t start and stop on FLEXID/TRIAL, signed with flexidd's key
-// (lcmtypes/message_auth.h; --key-file, else $FLEXID_KEY_FILE, else var/flexidd.key). Its
-// sent_utime is the wall clock, whatever --speed and --start-utime do to message time.
+// publishes flexid::voltage_sample_t on PREFIX/<ID>/VOLTAGE and flexid::deflection_sample_t
+// on PREFIX/<ID>/DEFLECTION in message time (runner.h; bus/sample_publisher.h); with
+// --trial-control also flexid::trial_control2_t start and stop on PREFIX/TRIAL, signed with
+// flexidd's key (lcmtypes/message_auth.h; --key-file, else $FLEXID_KEY_FILE, else
+// var/flexidd.key). Its sent_utime is the wall clock, whatever --speed and --start-utime do
+// to message time. PREFIX is flexidd's channel_prefix, given with --channel-prefix (default
+// FLEXID).
 //
 // Several actuators: --actuator may be repeated or hold a comma-separated list. Every
 // actuator plays the same protocol on its own channels, with its own noise stream (seed +
@@ -27,8 +30,8 @@
 // has a first column `actuator` (actuator,t_s,voltage_V,deflection_mm), one row per
 // actuator and sample, in time order and the actuators in the order given within a time;
 // such a file is not a recording CSV (its time repeats): select one actuator's rows first.
-// The bus options (--lcm, --speed, --start-utime, --trial-control, --key-file) are rejected
-// with --out.
+// The bus options (--lcm, --channel-prefix, --speed, --start-utime, --trial-control,
+// --key-file) are rejected with --out.
 //
 // Prints one summary line on stdout. Errors are one line on stderr; exit 0 success, 1 the
 // run failed (bus, unstable model, a message not sent, the file not written, interrupted by
@@ -43,9 +46,6 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
-#include <flexid/deflection_sample_t.hpp>
-#include <flexid/trial_control2_t.hpp>
-#include <flexid/voltage_sample_t.hpp>
 #include <fstream>
 #include <iostream>
 #include <lcm/lcm-cpp.hpp>
@@ -54,8 +54,10 @@
 #include <string>
 #include <vector>
 
+#include "bus/channels.h"
 #include "bus/clock.h"
 #include "bus/ids.h"
+#include "bus/sample_publisher.h"
 #include "clients/cli/command.h"
 #include "clients/rig/effects.h"
 #include "clients/rig/protocol.h"
@@ -82,6 +84,7 @@ struct RigArgs {
   std::string out_path;                        // offline: the recording CSV; empty: on the bus
   std::vector<std::string> bus_options_given;  // bus-only flags given, e.g. "--lcm"
   std::string lcm_url;
+  std::string channel_prefix = bus::kDefaultPrefix;
   std::vector<std::string> actuator_ids;  // as given; "S1,S2" is split by CLI11
   std::string protocol;
   double speed = 1.0;
@@ -96,49 +99,29 @@ struct RigArgs {
   std::string key_file;  // signs trial control (empty: $FLEXID_KEY_FILE, else var/flexidd.key)
 };
 
+// The runner's sink on the bus: bus::SamplePublisher builds, signs and publishes.
 class LcmSink : public BusSink {
  public:
-  LcmSink(lcm::LCM& lcm, std::string actuator_id, const flexid::auth::Key* key)
-      : lcm_(&lcm),
-        key_(key),
-        actuator_id_(std::move(actuator_id)),
-        voltage_channel_("FLEXID/" + actuator_id_ + "/VOLTAGE"),
-        deflection_channel_("FLEXID/" + actuator_id_ + "/DEFLECTION") {}
+  // `key` is null without --trial-control.
+  LcmSink(lcm::LCM& lcm, const bus::Channels& channels, const std::string& actuator_id,
+          const flexid::auth::Key* key)
+      : publisher_(lcm, channels, actuator_id, key) {}
 
   bool PublishVoltage(int64_t utime, double voltage_V) override {
-    flexid::voltage_sample_t message;
-    message.utime = utime;
-    message.actuator_id = actuator_id_;
-    message.voltage_V = voltage_V;
-    return lcm_->publish(voltage_channel_, &message) == 0;
+    return publisher_.PublishVoltage(utime, voltage_V);
   }
   bool PublishDeflection(int64_t utime, double deflection_mm) override {
-    flexid::deflection_sample_t message;
-    message.utime = utime;
-    message.actuator_id = actuator_id_;
-    message.deflection_mm = deflection_mm;
-    return lcm_->publish(deflection_channel_, &message) == 0;
+    return publisher_.PublishDeflection(utime, deflection_mm);
   }
   bool PublishTrialControl(int64_t utime, TrialAction action,
                            const std::string& protocol) override {
-    if (key_ == nullptr) return false;
-    flexid::trial_control2_t message;
-    message.utime = utime;
-    message.actuator_id = actuator_id_;
-    message.action = action == TrialAction::kStart ? flexid::trial_control2_t::kStart
-                                                   : flexid::trial_control2_t::kStop;
-    message.protocol = protocol;
-    message.sent_utime = flexid::bus::WallClockUtime();  // utime is message time
-    flexid::auth::Sign(*key_, &message);
-    return lcm_->publish("FLEXID/TRIAL", &message) == 0;
+    return publisher_.PublishTrialControl(
+        utime, action == TrialAction::kStart ? bus::TrialAction::kStart : bus::TrialAction::kStop,
+        protocol);
   }
 
  private:
-  lcm::LCM* lcm_;
-  const flexid::auth::Key* key_;  // null without --trial-control
-  std::string actuator_id_;
-  std::string voltage_channel_;
-  std::string deflection_channel_;
+  bus::SamplePublisher publisher_;
 };
 
 // Checks the ids (each valid, none twice); throws UsageError.
@@ -271,10 +254,12 @@ int RunRigCommand(const RigArgs& args) {
   }
   lcm::LCM lcm(args.lcm_url);
   if (!lcm.good()) throw OperationError("cannot open the LCM bus [url: " + args.lcm_url + "]");
+  const bus::Channels channels(args.channel_prefix);
   std::vector<std::unique_ptr<LcmSink>> sinks;
   std::vector<ActuatorOnBus> actuators;
   for (size_t i = 0; i < rigs.size(); ++i) {
-    sinks.push_back(std::make_unique<LcmSink>(lcm, args.actuator_ids[i], key ? &*key : nullptr));
+    sinks.push_back(
+        std::make_unique<LcmSink>(lcm, channels, args.actuator_ids[i], key ? &*key : nullptr));
     actuators.push_back({.rig = &rigs[i], .sink = sinks.back().get()});
   }
 
@@ -316,6 +301,11 @@ int main(int argc, char** argv) {
                  "actuator,t_s,voltage_V,deflection_mm");
   CLI::Option* lcm = app.add_option(
       "--lcm", args.lcm_url, "LCM URL, e.g. udpm://239.255.76.67:7667?ttl=0 (not with --out)");
+  CLI::Option* channel_prefix =
+      app.add_option("--channel-prefix", args.channel_prefix,
+                     "Channel prefix, flexidd's channel_prefix (not with --out)")
+          ->capture_default_str()
+          ->check([](const std::string& prefix) { return flexid::bus::PrefixProblem(prefix); });
   app.add_option("--actuator", args.actuator_ids,
                  "Actuator id, e.g. S1 (names the channels); repeatable or S1,S2: several "
                  "actuators, same protocol, own noise (seed + i) and channels; with --out and "
@@ -351,7 +341,7 @@ int main(int argc, char** argv) {
   CLI::Option* start_utime = app.add_option(
       "--start-utime", args.start_utime, "utime of the first sample, microseconds (default: now)");
   CLI::Option* trial_control = app.add_flag("--trial-control", args.trial_control,
-                                            "Publish trial start and stop on FLEXID/TRIAL");
+                                            "Publish trial start and stop on PREFIX/TRIAL");
   CLI::Option* key_file = app.add_option(
       "--key-file", args.key_file,
       "flexidd's key, to sign trial control (default $FLEXID_KEY_FILE, else var/flexidd.key)");
@@ -369,7 +359,8 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
     args.start_utime_given = start_utime->count() > 0;
-    for (const CLI::Option* option : {lcm, speed, start_utime, trial_control, key_file})
+    for (const CLI::Option* option :
+         {lcm, channel_prefix, speed, start_utime, trial_control, key_file})
       if (option->count() > 0) args.bus_options_given.push_back(option->get_name());
     return flexid::rig::RunRigCommand(args);
   } catch (const CLI::Success& e) {
