@@ -7,10 +7,15 @@
 #include <string_view>
 #include <vector>
 
-#include "daemon/residual_monitor.h"
+#include "model/monitor.h"
 #include "storage/database.h"
 
 namespace flexid::daemon {
+
+// The residual monitor is pure logic and lives in model/ (model/monitor.h).
+using model::Alert;
+using model::MonitorOptions;
+using model::ResidualMonitor;
 
 struct IdentificationConfig {
   // "global": the whole T-S model in one fit, its structure chosen on held-out data
