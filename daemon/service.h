@@ -222,6 +222,19 @@ struct Service {
   RpcOutcome ReplyWhenWritten(uint64_t ticket, const flexid::rpc_request_t& request,
                               RpcOutcome reply, std::function<void()> then = {});
   RpcOutcome HandleRequest(const flexid::rpc_request_t& request);
+  ActuatorState* ActuatorArgument(const nlohmann::json& args, bool required);
+  // The methods (rpc_methods.cc: kRpcMethods).
+  RpcOutcome RpcStatus(const flexid::rpc_request_t& request, const nlohmann::json& args);
+  RpcOutcome RpcActuators(const flexid::rpc_request_t& request, const nlohmann::json& args);
+  RpcOutcome RpcTrials(const flexid::rpc_request_t& request, const nlohmann::json& args);
+  RpcOutcome RpcTrialSamples(const flexid::rpc_request_t& request, const nlohmann::json& args);
+  RpcOutcome RpcModels(const flexid::rpc_request_t& request, const nlohmann::json& args);
+  RpcOutcome RpcModel(const flexid::rpc_request_t& request, const nlohmann::json& args);
+  RpcOutcome RpcAlerts(const flexid::rpc_request_t& request, const nlohmann::json& args);
+  RpcOutcome RpcModelActivate(const flexid::rpc_request_t& request, const nlohmann::json& args);
+  RpcOutcome RpcTrialControl(const flexid::rpc_request_t& request, const nlohmann::json& args);
+  RpcOutcome RpcIdentify(const flexid::rpc_request_t& request, const nlohmann::json& args);
+  RpcOutcome RpcDiagnose(const flexid::rpc_request_t& request, const nlohmann::json& args);
 
   // worker.cc
   void WorkerLoop();
