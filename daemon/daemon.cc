@@ -87,16 +87,11 @@ Service::Service(Config c, std::string path)
     if (!actuators.count(a.id)) AddActuator(a);
 
   Subscribe();
-  worker = std::thread([this] { WorkerLoop(); });
+  worker = std::make_unique<Worker>(background_cpus, [this] { Wake(); });
 }
 
 Service::~Service() {
-  {
-    std::lock_guard<std::mutex> lock(worker_mutex);
-    worker_exit = true;
-  }
-  worker_wake.notify_all();
-  if (worker.joinable()) worker.join();
+  worker.reset();  // its job may be flushing the writer
 }
 
 // Queues a write for the writer thread; returns its ticket (0: an alert refused).

@@ -48,17 +48,13 @@ void Service::DrainFinished() {
       spdlog::error("write outcome not handled [error: {}]", e.what());
     }
   }
-  std::deque<IdentifyResult> done;
-  {
-    std::lock_guard<std::mutex> lock(worker_mutex);
-    done.swap(finished);
-  }
-  for (IdentifyResult& result : done) {
+  for (JobResult& result : worker->TakeFinished()) {
     try {
       OnWorkerResult(result);
     } catch (const std::exception& e) {
-      spdlog::error("worker result failed [actuator: {}, error: {}]", result.actuator_id, e.what());
-      Reply(result.request, {flexid::rpc_reply_t::kFailed, nullptr, e.what()});
+      spdlog::error("worker result failed [actuator: {}, error: {}]", OriginOf(result).actuator_id,
+                    e.what());
+      Reply(OriginOf(result).request, {flexid::rpc_reply_t::kFailed, nullptr, e.what()});
     }
   }
 }
@@ -97,7 +93,7 @@ void Service::PublishStatus() {
   int32_t recording = 0;
   for (const auto& [id, state] : actuators) recording += state.trial_id != 0;
   status.trials_recording = recording;
-  status.identification_running = identifying ? 1 : 0;
+  status.identification_running = worker->busy() ? 1 : 0;
   lcm.publish(config.channel_prefix + "/STATUS", &status);
   if (!writer->last_error().empty())
     spdlog::error("sample writer [error: {}]", writer->last_error());

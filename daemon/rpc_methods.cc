@@ -179,7 +179,7 @@ RpcOutcome Service::RpcStatus(const flexid::rpc_request_t&, const nlohmann::json
            {"alerts_dropped", c.alerts_dropped},
            {"writes_queued", writer->writes_queued()},
            {"requests_refused_unauthorized", c.refused_unauthorized},
-           {"identification_running", identifying.load()}},
+           {"identification_running", worker->busy()}},
           "",
           false};
 }
@@ -331,10 +331,10 @@ RpcOutcome Service::RpcIdentify(const flexid::rpc_request_t& request, const nloh
   const std::string database = config.database, id = state->info.id;
   const IdentificationConfig options = config.identification;
   const RpcContext context{request.request_id, request.client_id};
-  if (!Submit([database, id, trials, options, context, samples] {
+  if (!worker->Submit([database, id, trials, options, context, samples] {
         if (!samples->Flush())  // the worker reads what is committed
-          return IdentifyResult{context, id, std::nullopt,
-                                "cannot commit samples: " + samples->last_error()};
+          return IdentificationResult{
+              {context, id, "cannot commit samples: " + samples->last_error()}};
         return RunIdentification(database, id, trials, options, context);
       }))
     return {ReplyStatus::kBusy, nullptr,
@@ -380,15 +380,10 @@ RpcOutcome Service::RpcDiagnose(const flexid::rpc_request_t& request, const nloh
   const std::string database = config.database, id = state->info.id;
   const RpcContext context{request.request_id, request.client_id};
   const int64_t max_samples = config.identification.max_diagnosis_samples;
-  if (!Submit([database, id, trial_ids, use_model, max_samples, context, samples] {
+  if (!worker->Submit([database, id, trial_ids, use_model, max_samples, context, samples] {
         if (!samples->Flush())
-          return IdentifyResult{context,
-                                id,
-                                std::nullopt,
-                                "cannot commit samples: " + samples->last_error(),
-                                nullptr,
-                                trial_ids,
-                                {}};
+          return DiagnosisResult{
+              {context, id, "cannot commit samples: " + samples->last_error()}, nullptr, trial_ids};
         return RunDiagnosis(database, id, trial_ids, use_model, max_samples, context);
       }))
     return {ReplyStatus::kBusy, nullptr,

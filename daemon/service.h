@@ -45,12 +45,6 @@
 
 namespace flexid::daemon {
 
-// The sample writer and the identification worker run at this nice value, so that their
-// bursts (a commit every 100 ms, a fit taking a core for a second) yield the cores to the
-// loop and LCM's receive thread: on two cores, commits otherwise showed up as a cluster
-// of >1 ms prediction latencies once per commit interval (bench/daemon_load).
-constexpr int kBackgroundNice = 10;
-
 // What the loop knows of one actuator: its inputs, its trial, its health, its prediction.
 struct ActuatorState {
   storage::Actuator info;
@@ -107,15 +101,9 @@ struct Service {
   std::chrono::steady_clock::time_point started = std::chrono::steady_clock::now();
   std::chrono::steady_clock::time_point next_status = started;
 
-  // Identification worker: one job at a time; a second request while one runs is "busy".
-  std::thread worker;
-  std::mutex worker_mutex;
-  std::condition_variable worker_wake;
-  std::optional<std::function<IdentifyResult()>> job;
-  std::deque<IdentifyResult> finished;
-  std::atomic<bool> identifying{false};
-  bool worker_exit = false;
   std::vector<int> background_cpus;  // pin_threads: the writer's and the worker's CPUs
+  // Identification and diagnosis (worker.h): after the writer, which its jobs flush.
+  std::unique_ptr<Worker> worker;
 
   // Health (health.cc): the time of this loop pass, the database file's identity,
   // the storage failure in progress.
@@ -237,10 +225,8 @@ struct Service {
   RpcOutcome RpcDiagnose(const flexid::rpc_request_t& request, const nlohmann::json& args);
 
   // worker.cc
-  void WorkerLoop();
-  bool Submit(std::function<IdentifyResult()> task);
-  void OnWorkerResult(IdentifyResult& result);
-  void ReportDiagnosis(const IdentifyResult& result);
+  void OnWorkerResult(JobResult& result);
+  void ReportDiagnosis(const DiagnosisResult& result);
 
   // health.cc
   int64_t LatestUtime() const;

@@ -48,10 +48,13 @@ std::string TrialWords(const std::vector<int64_t>& ids) {
   return text;
 }
 
-IdentifyResult RunDiagnosis(const std::string& database, const std::string& actuator_id,
-                            const std::vector<int64_t>& trial_ids, bool use_model,
-                            int64_t max_samples, RpcContext request) {
-  IdentifyResult result{std::move(request), actuator_id, std::nullopt, "", nullptr, trial_ids, {}};
+DiagnosisResult RunDiagnosis(const std::string& database, const std::string& actuator_id,
+                             const std::vector<int64_t>& trial_ids, bool use_model,
+                             int64_t max_samples, RpcContext request) {
+  DiagnosisResult result;
+  result.request = std::move(request);
+  result.actuator_id = actuator_id;
+  result.trial_ids = trial_ids;
   try {
     storage::Database db = storage::Database::Open(database);
     int64_t count = 0;
@@ -93,10 +96,12 @@ IdentifyResult RunDiagnosis(const std::string& database, const std::string& actu
   return result;
 }
 
-IdentifyResult RunIdentification(const std::string& database, const std::string& actuator_id,
-                                 std::vector<int64_t> trial_ids, const IdentificationConfig& config,
-                                 RpcContext request) {
-  IdentifyResult result{std::move(request), actuator_id, std::nullopt, ""};
+IdentificationResult RunIdentification(const std::string& database, const std::string& actuator_id,
+                                       std::vector<int64_t> trial_ids,
+                                       const IdentificationConfig& config, RpcContext request) {
+  IdentificationResult result;
+  result.request = std::move(request);
+  result.actuator_id = actuator_id;
   try {
     storage::Database db = storage::Database::Open(database);
     std::vector<model::Recording> recordings;
@@ -156,90 +161,116 @@ IdentifyResult RunIdentification(const std::string& database, const std::string&
   return result;
 }
 
-void Service::WorkerLoop() {
+const JobOrigin& OriginOf(const JobResult& result) {
+  return std::visit([](const JobOrigin& origin) -> const JobOrigin& { return origin; }, result);
+}
+
+Worker::Worker(std::vector<int> cpus, std::function<void()> on_finished)
+    : cpus_(std::move(cpus)), on_finished_(std::move(on_finished)), thread_([this] { Loop(); }) {}
+
+Worker::~Worker() {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    exit_ = true;
+  }
+  wake_.notify_all();
+  if (thread_.joinable()) thread_.join();
+}
+
+void Worker::Loop() {
   // Identification takes a whole core for up to a second: run it under SCHED_IDLE, so
   // that it only ever uses a core nobody else wants and the loop wakes without waiting
   // for one (nice alone left a few ms of wake-up delay on two cores when a fit started).
-  if (!background_cpus.empty()) {
+  if (!cpus_.empty()) {
     cpu_set_t set;
     CPU_ZERO(&set);
-    for (int cpu : background_cpus) CPU_SET(cpu, &set);
+    for (int cpu : cpus_) CPU_SET(cpu, &set);
     pthread_setaffinity_np(pthread_self(), sizeof set, &set);
   }
   sched_param idle{};
   if (pthread_setschedparam(pthread_self(), SCHED_IDLE, &idle) != 0)
     setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), kBackgroundNice);
   while (true) {
-    std::function<IdentifyResult()> task;
+    std::function<JobResult()> task;
     {
-      std::unique_lock<std::mutex> lock(worker_mutex);
-      worker_wake.wait(lock, [this] { return worker_exit || job.has_value(); });
-      if (worker_exit) return;
-      task = std::move(*job);
-      job.reset();
+      std::unique_lock<std::mutex> lock(mutex_);
+      wake_.wait(lock, [this] { return exit_ || job_.has_value(); });
+      if (exit_) return;
+      task = std::move(*job_);
+      job_.reset();
     }
-    IdentifyResult result = task();
+    JobResult result = task();
     {
-      std::lock_guard<std::mutex> lock(worker_mutex);
-      finished.push_back(std::move(result));
+      std::lock_guard<std::mutex> lock(mutex_);
+      finished_.push_back(std::move(result));
     }
-    identifying = false;
-    Wake();
+    busy_ = false;
+    on_finished_();
   }
 }
 
-bool Service::Submit(std::function<IdentifyResult()> task) {
-  std::lock_guard<std::mutex> lock(worker_mutex);
-  if (identifying) return false;
-  identifying = true;
-  job = std::move(task);
-  worker_wake.notify_one();
+bool Worker::Submit(std::function<JobResult()> task) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (busy_) return false;
+  busy_ = true;
+  job_ = std::move(task);
+  wake_.notify_one();
   return true;
 }
 
-void Service::OnWorkerResult(IdentifyResult& result) {
-  if (result.diagnosis.is_object()) {
-    ReportDiagnosis(result);
+std::deque<JobResult> Worker::TakeFinished() {
+  std::deque<JobResult> done;
+  std::lock_guard<std::mutex> lock(mutex_);
+  done.swap(finished_);
+  return done;
+}
+
+void Service::OnWorkerResult(JobResult& result) {
+  if (const auto* diagnosis = std::get_if<DiagnosisResult>(&result);
+      diagnosis && diagnosis->diagnosis.is_object()) {
+    ReportDiagnosis(*diagnosis);
     return;
   }
-  if (!result.model) {
+  auto* identified = std::get_if<IdentificationResult>(&result);
+  if (!identified || !identified->model) {
+    const JobOrigin& failed = OriginOf(result);
     spdlog::error("{} failed [actuator: {}, error: {}]",
-                  !result.trial_ids.empty() ? "diagnosis" : "identification", result.actuator_id,
-                  result.error);
-    Reply(result.request, {flexid::rpc_reply_t::kFailed, nullptr, result.error});
+                  identified ? "identification" : "diagnosis", failed.actuator_id, failed.error);
+    Reply(failed.request, {flexid::rpc_reply_t::kFailed, nullptr, failed.error});
     return;
   }
   // Stored by the writer as the next version; then swapped in and answered.
-  const uint64_t ticket = Store(std::move(*result.model));
-  on_written.emplace(ticket, [this, request = result.request, actuator_id = result.actuator_id](
-                                 const storage::WriteOutcome& written) {
-    if (!written.model) {
-      spdlog::error("identification failed [actuator: {}, error: cannot store the model: {}]",
-                    actuator_id, written.error);
-      Reply(request,
-            {flexid::rpc_reply_t::kFailed, nullptr, "cannot store the model: " + written.error});
-      return;
-    }
-    try {
-      auto it = actuators.find(actuator_id);
-      if (it != actuators.end()) {
-        LoadModel(&it->second, *written.model);  // hot swap
-        AnnounceModel(&it->second, *written.model);
-      }
-      nlohmann::json out = storage::ModelSummaryJson(*written.model);
-      out["model"] = nlohmann::json::parse(written.model->model_json);
-      Reply(request, {flexid::rpc_reply_t::kOk, out, ""});
-    } catch (const std::exception& e) {
-      spdlog::error("model {} stored but not put to use [actuator: {}, error: {}]",
-                    written.model->version, actuator_id, e.what());
-      Reply(request, {flexid::rpc_reply_t::kFailed, nullptr, e.what()});
-    }
-  });
+  const uint64_t ticket = Store(std::move(*identified->model));
+  on_written.emplace(
+      ticket, [this, request = identified->request,
+               actuator_id = identified->actuator_id](const storage::WriteOutcome& written) {
+        if (!written.model) {
+          spdlog::error("identification failed [actuator: {}, error: cannot store the model: {}]",
+                        actuator_id, written.error);
+          Reply(request, {flexid::rpc_reply_t::kFailed, nullptr,
+                          "cannot store the model: " + written.error});
+          return;
+        }
+        try {
+          auto it = actuators.find(actuator_id);
+          if (it != actuators.end()) {
+            LoadModel(&it->second, *written.model);  // hot swap
+            AnnounceModel(&it->second, *written.model);
+          }
+          nlohmann::json out = storage::ModelSummaryJson(*written.model);
+          out["model"] = nlohmann::json::parse(written.model->model_json);
+          Reply(request, {flexid::rpc_reply_t::kOk, out, ""});
+        } catch (const std::exception& e) {
+          spdlog::error("model {} stored but not put to use [actuator: {}, error: {}]",
+                        written.model->version, actuator_id, e.what());
+          Reply(request, {flexid::rpc_reply_t::kFailed, nullptr, e.what()});
+        }
+      });
 }
 
 // A diagnosis that names an effect is an alert of that effect's kind (the catalogue of
 // model/diagnose.h), spanning the trial, with the explanation as its text.
-void Service::ReportDiagnosis(const IdentifyResult& result) {
+void Service::ReportDiagnosis(const DiagnosisResult& result) {
   const nlohmann::json& d = result.diagnosis;
   auto it = actuators.find(result.actuator_id);
   const std::string verdict = d.value("verdict", "none");
