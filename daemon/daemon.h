@@ -9,7 +9,7 @@
 //                                          --> FLEXID/<id>/PREDICTION
 //                                          --> ResidualMonitor --> FLEXID/ALERT (+ writer)
 //   FLEXID/RPC/REQUEST --> signature check for methods that change data (message_auth.h)
-//        --> methods (rpc.h); "identify" runs on the identification worker, the writer
+//        --> methods (rpc_methods.h); "identify" runs on the identification worker, the writer
 //        stores a new model version, then the loop hot-swaps the predictor and replies.
 //   FLEXID/STATUS <-- counters, once a second.
 //
