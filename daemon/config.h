@@ -8,10 +8,15 @@
 #include <vector>
 
 #include "bus/channels.h"
-#include "daemon/residual_monitor.h"
+#include "model/monitor.h"
 #include "storage/database.h"
 
 namespace flexid::daemon {
+
+// The residual monitor is pure logic and lives in model/ (model/monitor.h).
+using model::Alert;
+using model::MonitorOptions;
+using model::ResidualMonitor;
 
 struct IdentificationConfig {
   // "global": the whole T-S model in one fit, its structure chosen on held-out data

@@ -9,7 +9,7 @@
 //                                          --> FLEXID/<id>/PREDICTION
 //                                          --> ResidualMonitor --> FLEXID/ALERT (+ writer)
 //   FLEXID/RPC/REQUEST --> signature check for methods that change data (message_auth.h)
-//        --> methods (rpc.h); "identify" runs on the identification worker, the writer
+//        --> methods (rpc_methods.h); "identify" runs on the identification worker, the writer
 //        stores a new model version, then the loop hot-swaps the predictor and replies.
 //   FLEXID/STATUS <-- counters, once a second.
 //
@@ -55,6 +55,8 @@ struct Counters {
   int64_t refused_unauthorized = 0;
 };
 
+struct Service;
+
 class Daemon {
  public:
   // Opens the database (marking trials left 'recording' by a crash as interrupted), loads
@@ -75,8 +77,7 @@ class Daemon {
   Counters counters() const;
 
  private:
-  struct Impl;
-  std::unique_ptr<Impl> impl_;
+  std::unique_ptr<Service> impl_;  // the state and the parts (daemon/service.h)
 };
 
 // Blocks SIGTERM, SIGINT and SIGHUP in the calling thread (and so in every thread it

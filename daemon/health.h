@@ -5,7 +5,7 @@
 //  - the database file deleted or replaced under the daemon: FileIdentity tells;
 //  - a source's clock jumping back or forward: ClockJumpDetector, per stream, in message
 //    time (the host's wall clock plays no part in recording).
-// Small pure pieces; the daemon's loop (daemon.cc, "Health") acts on what they say.
+// Small pure pieces; the daemon's loop acts on what they say (health.cc, below them).
 #pragma once
 
 #include <sys/types.h>

@@ -61,4 +61,12 @@ std::vector<int64_t> TrialIdsArgument(const nlohmann::json& args, const char* na
   return ids;
 }
 
+std::string ArgumentSummary(const std::string& args_json) {
+  std::string out = args_json.substr(0, 200);
+  for (char& c : out)
+    if (static_cast<unsigned char>(c) < 0x20 || c == 0x7f) c = '?';
+  if (args_json.size() > 200) out += "...";
+  return out;
+}
+
 }  // namespace flexid::daemon

@@ -36,6 +36,10 @@ struct RpcOutcome {
 struct ArgumentError : std::runtime_error {
   using std::runtime_error::runtime_error;
 };
+// A request's arguments (or any text from the bus) for the log: at most 200 bytes, control
+// characters as '?'.
+std::string ArgumentSummary(const std::string& args_json);
+
 nlohmann::json ParseArguments(const std::string& args_json);
 std::string StringArgument(const nlohmann::json& args, const char* name,
                            const std::string* fallback = nullptr);

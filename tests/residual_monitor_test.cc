@@ -1,5 +1,3 @@
-#include "daemon/residual_monitor.h"
-
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -12,8 +10,9 @@
 #include <vector>
 
 #include "gaussian.h"
+#include "model/monitor.h"
 
-namespace flexid::daemon {
+namespace flexid::model {
 namespace {
 
 using testing::Gaussian;
@@ -603,4 +602,4 @@ TEST(MonitorOptions, Validation) {
 }
 
 }  // namespace
-}  // namespace flexid::daemon
+}  // namespace flexid::model

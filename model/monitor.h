@@ -106,7 +106,7 @@
 #include <string>
 #include <vector>
 
-namespace flexid::daemon {
+namespace flexid::model {
 
 struct MonitorOptions {
   double false_alarms_per_hour = 0.1;  // target rate when the model fits (per actuator, per kind)
@@ -249,4 +249,4 @@ class ResidualMonitor {
   int64_t within_since_utime_ = 0;
 };
 
-}  // namespace flexid::daemon
+}  // namespace flexid::model

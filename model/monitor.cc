@@ -1,4 +1,4 @@
-#include "daemon/residual_monitor.h"
+#include "model/monitor.h"
 
 #include <algorithm>
 #include <cmath>
@@ -8,7 +8,7 @@
 #include <stdexcept>
 #include <utility>
 
-namespace flexid::daemon {
+namespace flexid::model {
 namespace {
 
 constexpr double kBlockMax_s = 60.0;               // noise-statistics block length (header)
@@ -638,4 +638,4 @@ std::vector<Alert> ResidualMonitor::OnVoltage(int64_t utime, double voltage_V) {
   return alerts;
 }
 
-}  // namespace flexid::daemon
+}  // namespace flexid::model

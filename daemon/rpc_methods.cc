@@ -1,0 +1,396 @@
+// RPC (DESIGN.md: "RPC server"): requests on FLEXID/RPC/REQUEST, the signature check for
+// methods that change data (lcmtypes/message_auth.h), and the table of methods.
+#include "daemon/rpc_methods.h"
+
+#include <flexid/rpc_reply_t.hpp>
+
+#include "bus/clock.h"
+#include "bus/ids.h"
+#include "daemon/service.h"
+#include "flexid/version.h"
+#include "model/diagnose.h"
+#include "model/identify.h"
+#include "storage/record_json.h"
+
+namespace flexid::daemon {
+namespace {
+
+using ReplyStatus = flexid::rpc_reply_t;
+
+}  // namespace
+
+void Service::OnRequest(const lcm::ReceiveBuffer& rbuf) {
+  flexid::rpc_request_t request;
+  if (!Decode(rbuf, &request, wire::kRpcRequest)) return;
+  const RpcContext context{request.request_id, request.client_id};
+  // Methods that change data need a valid signature, a fresh time and a new nonce; every
+  // one is logged with its outcome. Read-only methods need none (an `auth` is ignored).
+  const bool changes_data = ChangesData(request.method);
+  if (changes_data) {
+    const std::string refusal = verifier.Check(request, bus::WallClockUtime());
+    if (!refusal.empty()) {
+      ++counters.refused_unauthorized;
+      spdlog::warn(
+          "request refused [method: {}, client: {}, request: {}, args: {}] not authorised: {}",
+          ArgumentSummary(request.method), ArgumentSummary(request.client_id),
+          ArgumentSummary(request.request_id), ArgumentSummary(request.args_json), refusal);
+      Reply(context,
+            {flexid::rpc_reply_t::kUnauthorized, nullptr, "not authorised: " + refusal, false});
+      return;
+    }
+  }
+  // A request that reads the file sees every write queued before it (a trial stopped
+  // on the bus, then "identify"), as when the loop wrote itself: it waits for them,
+  // unless storage is failing (then it is answered from what the file holds).
+  if (ReadsTheFile(request.method) && last_done_ticket < last_ticket &&
+      writer->last_error().empty()) {
+    on_written.emplace(last_ticket,
+                       [this, request](const storage::WriteOutcome&) { Answer(request); });
+    return;
+  }
+  Answer(request);
+}
+
+bool Service::ReadsTheFile(const std::string& method) {
+  return method != "status" && method != "actuators";
+}
+
+void Service::Answer(const flexid::rpc_request_t& request) {
+  const RpcContext context{request.request_id, request.client_id};
+  const bool changes_data = ChangesData(request.method);
+  RpcOutcome outcome = HandleRequest(request);
+  if (outcome.deferred && outcome.written != 0) return;  // see ReplyWhenWritten
+  if (changes_data)
+    LogAccepted(request, outcome.deferred ? "running on the worker"
+                         : outcome.status == flexid::rpc_reply_t::kOk
+                             ? "done"
+                             : "failed: " + ArgumentSummary(outcome.error));
+  if (outcome.deferred) return;  // identify: answered when the worker finishes
+  Reply(context, outcome);
+}
+
+void Service::LogAccepted(const flexid::rpc_request_t& request, const std::string& how) {
+  spdlog::info("request accepted [method: {}, client: {}, request: {}, args: {}] {}",
+               ArgumentSummary(request.method), ArgumentSummary(request.client_id),
+               ArgumentSummary(request.request_id), ArgumentSummary(request.args_json), how);
+}
+
+// A request that changed data is answered once the writer has committed its last write
+// (then "ok" means stored, and `then` runs first), or refused it (then the reply says
+// why). While storage fails the reply waits: the write is retried. Returns the deferred
+// outcome for HandleRequest to return.
+RpcOutcome Service::ReplyWhenWritten(uint64_t ticket, const flexid::rpc_request_t& request,
+                                     RpcOutcome reply, std::function<void()> then) {
+  on_written.emplace(ticket, [this, request, reply = std::move(reply),
+                              then = std::move(then)](const storage::WriteOutcome& written) {
+    RpcOutcome outcome = written.error.empty()
+                             ? reply
+                             : RpcOutcome{flexid::rpc_reply_t::kFailed, nullptr, written.error};
+    try {
+      if (written.error.empty() && then) then();
+    } catch (const std::exception& e) {
+      outcome = {flexid::rpc_reply_t::kFailed, nullptr, e.what()};
+    }
+    LogAccepted(request, outcome.status == flexid::rpc_reply_t::kOk
+                             ? "done"
+                             : "failed: " + ArgumentSummary(outcome.error));
+    Reply({request.request_id, request.client_id}, outcome);
+  });
+  return {flexid::rpc_reply_t::kOk, nullptr, "", true, ticket};
+}
+
+namespace {
+
+// One method: its name, whether requests for it must be signed (it changes data), and its
+// handler. The access stated here is the one lcmtypes/message_auth.h's ChangesData() gives,
+// which OnRequest checks and the clients sign by (tests/rpc_methods_test.cc: they agree).
+struct RpcMethod {
+  std::string_view name;
+  Access access;
+  RpcOutcome (Service::*handle)(const flexid::rpc_request_t& request, const nlohmann::json& args);
+};
+
+constexpr RpcMethod kRpcMethods[] = {
+    {"status", Access::kReadOnly, &Service::RpcStatus},
+    {"actuators", Access::kReadOnly, &Service::RpcActuators},
+    {"trials", Access::kReadOnly, &Service::RpcTrials},
+    {"trial_samples", Access::kReadOnly, &Service::RpcTrialSamples},
+    {"models", Access::kReadOnly, &Service::RpcModels},
+    {"model", Access::kReadOnly, &Service::RpcModel},
+    {"alerts", Access::kReadOnly, &Service::RpcAlerts},
+    {"model_activate", Access::kSigned, &Service::RpcModelActivate},
+    {"trial_start", Access::kSigned, &Service::RpcTrialControl},
+    {"trial_stop", Access::kSigned, &Service::RpcTrialControl},
+    {"identify", Access::kSigned, &Service::RpcIdentify},
+    {"diagnose", Access::kSigned, &Service::RpcDiagnose},
+};
+
+}  // namespace
+
+std::vector<RpcMethodAccess> RpcMethodAccesses() {
+  std::vector<RpcMethodAccess> out;
+  for (const RpcMethod& method : kRpcMethods) out.push_back({method.name, method.access});
+  return out;
+}
+
+RpcOutcome Service::HandleRequest(const flexid::rpc_request_t& request) {
+  if (!bus::IsValidId(request.client_id) || request.request_id.empty() ||
+      request.request_id.size() > 128)
+    return {ReplyStatus::kBadRequest, nullptr,
+            "client_id must be [A-Za-z0-9_-]{1,64} and request_id 1-128 characters", false};
+  try {
+    const nlohmann::json args = ParseArguments(request.args_json);
+    for (const RpcMethod& method : kRpcMethods)
+      if (method.name == request.method) return (this->*method.handle)(request, args);
+    return {ReplyStatus::kBadRequest, nullptr, "unknown method \"" + request.method + "\"", false};
+  } catch (const ArgumentError& e) {
+    return {ReplyStatus::kBadRequest, nullptr, e.what(), false};
+  } catch (const std::exception& e) {
+    return {ReplyStatus::kFailed, nullptr, e.what(), false};
+  }
+}
+
+// The actuator a request's "actuator" argument names (nothing when it is optional and not
+// given); throws ArgumentError for one flexidd does not know.
+ActuatorState* Service::ActuatorArgument(const nlohmann::json& args, bool required) {
+  const std::string empty;
+  const std::string id = StringArgument(args, "actuator", required ? nullptr : &empty);
+  if (id.empty()) return nullptr;
+  auto it = actuators.find(id);
+  if (it == actuators.end()) throw ArgumentError("unknown actuator \"" + id + "\"");
+  return &it->second;
+}
+
+RpcOutcome Service::RpcStatus(const flexid::rpc_request_t&, const nlohmann::json&) {
+  const Counters c = Snapshot();
+  return {ReplyStatus::kOk,
+          {{"daemon_id", config.daemon_id},
+           {"version", kVersion},
+           {"database", config.database},
+           {"messages_received", c.messages_received},
+           {"samples_accepted", c.samples_accepted},
+           {"samples_stored", c.samples_stored},
+           {"rejected_malformed", c.rejected_malformed},
+           {"rejected_nonfinite", c.rejected_nonfinite},
+           {"rejected_out_of_order", c.rejected_out_of_order},
+           {"rejected_unknown_actuator", c.rejected_unknown_actuator},
+           {"dropped_queue_full", c.dropped_queue_full},
+           {"predictions_published", c.predictions_published},
+           {"alerts_raised", c.alerts_raised},
+           {"alerts_dropped", c.alerts_dropped},
+           {"writes_queued", writer->writes_queued()},
+           {"requests_refused_unauthorized", c.refused_unauthorized},
+           {"identification_running", worker->busy()}},
+          "",
+          false};
+}
+
+RpcOutcome Service::RpcActuators(const flexid::rpc_request_t&, const nlohmann::json&) {
+  nlohmann::json list = nlohmann::json::array();
+  for (const auto& [id, state] : actuators)
+    list.push_back({{"id", id},
+                    {"length_mm", state.info.length_mm},
+                    {"width_mm", state.info.width_mm},
+                    {"thickness_mm", state.info.thickness_mm},
+                    {"material", state.info.material},
+                    {"electrolyte", state.info.electrolyte},
+                    {"concentration_M", state.info.concentration_M},
+                    {"model_version", state.predictor.version},
+                    {"trial", state.trial_id},
+                    {"voltage_V", state.voltage_V}});
+  return {ReplyStatus::kOk, list, "", false};
+}
+
+RpcOutcome Service::RpcTrials(const flexid::rpc_request_t&, const nlohmann::json& args) {
+  const ActuatorState* state = ActuatorArgument(args, false);
+  std::optional<std::string> filter;
+  if (state) filter = state->info.id;
+  nlohmann::json list = nlohmann::json::array();
+  for (const storage::Trial& t :
+       db.Trials(filter, static_cast<int>(IntegerArgument(args, "limit", 100, 1, 10000))))
+    list.push_back(storage::TrialJson(t));
+  return {ReplyStatus::kOk, list, "", false};
+}
+
+RpcOutcome Service::RpcTrialSamples(const flexid::rpc_request_t&, const nlohmann::json& args) {
+  const int64_t id = RequiredIntegerArgument(args, "trial", 1, INT64_MAX);
+  const auto trial = db.FindTrial(id);
+  if (!trial) return {ReplyStatus::kNotFound, nullptr, "no trial " + std::to_string(id), false};
+  // Pages by offset, or (cheaper for long trials) by the last utime of the previous page.
+  const int64_t offset = IntegerArgument(args, "offset", 0, 0, INT64_MAX);
+  const int64_t after = IntegerArgument(args, "after_utime", INT64_MIN, INT64_MIN, INT64_MAX);
+  const int64_t limit = IntegerArgument(args, "limit", 5000, 1, 20000);
+  const std::vector<storage::Sample> page = db.SamplesPage(id, after, offset, limit);
+  return {ReplyStatus::kOk, storage::SamplesPageJson(*trial, offset, page), "", false};
+}
+
+RpcOutcome Service::RpcModels(const flexid::rpc_request_t&, const nlohmann::json& args) {
+  ActuatorState* state = ActuatorArgument(args, true);
+  nlohmann::json list = nlohmann::json::array();
+  for (const storage::ModelRecord& m : db.Models(state->info.id))
+    list.push_back(storage::ModelSummaryJson(m));
+  return {ReplyStatus::kOk, list, "", false};
+}
+
+RpcOutcome Service::RpcModel(const flexid::rpc_request_t&, const nlohmann::json& args) {
+  ActuatorState* state = ActuatorArgument(args, true);
+  const auto version = static_cast<int32_t>(IntegerArgument(args, "version", 0, 0, INT32_MAX));
+  const auto m =
+      version == 0 ? db.ActiveModel(state->info.id) : db.FindModel(state->info.id, version);
+  if (!m) return {ReplyStatus::kNotFound, nullptr, "no such model of " + state->info.id, false};
+  nlohmann::json out = storage::ModelSummaryJson(*m);
+  out["model"] = nlohmann::json::parse(m->model_json);
+  return {ReplyStatus::kOk, out, "", false};
+}
+
+RpcOutcome Service::RpcModelActivate(const flexid::rpc_request_t& request,
+                                     const nlohmann::json& args) {
+  ActuatorState* state = ActuatorArgument(args, true);
+  const auto version = static_cast<int32_t>(RequiredIntegerArgument(args, "version", 1, INT32_MAX));
+  const auto record = db.FindModel(state->info.id, version);
+  if (!record) return {ReplyStatus::kNotFound, nullptr, "no such model version", false};
+  // Swapped in once the writer has made it the active one.
+  return ReplyWhenWritten(
+      Store(storage::ModelActivation{state->info.id, version}), request,
+      {ReplyStatus::kOk, {{"actuator", state->info.id}, {"version", version}}, ""},
+      [this, actuator = state->info.id, record = *record] {
+        LoadModel(&actuators.at(actuator), record);
+      });
+}
+
+RpcOutcome Service::RpcAlerts(const flexid::rpc_request_t&, const nlohmann::json& args) {
+  const ActuatorState* state = ActuatorArgument(args, false);
+  std::optional<std::string> filter;
+  if (state) filter = state->info.id;
+  nlohmann::json list = nlohmann::json::array();
+  for (const storage::AlertRecord& a :
+       db.Alerts(filter, IntegerArgument(args, "since_utime", 0, 0, INT64_MAX),
+                 static_cast<int>(IntegerArgument(args, "limit", 100, 1, 10000))))
+    list.push_back(storage::AlertJson(a));
+  return {ReplyStatus::kOk, list, "", false};
+}
+
+RpcOutcome Service::RpcTrialControl(const flexid::rpc_request_t& request,
+                                    const nlohmann::json& args) {
+  ActuatorState* state = ActuatorArgument(args, true);
+  const int64_t now =
+      state->voltage_utime != kNoTime ? state->voltage_utime : bus::WallClockUtime();
+  if (request.method == "trial_start") {
+    const std::string fallback = "manual";
+    const std::string protocol = StringArgument(args, "protocol", &fallback);
+    if (state->trial_id != 0) StopTrial(state, now, storage::TrialState::kComplete);
+    const uint64_t ticket = StartTrial(state, protocol, now, false);
+    return ReplyWhenWritten(
+        ticket, request,
+        {ReplyStatus::kOk, {{"actuator", state->info.id}, {"trial", state->trial_id}}, ""});
+  }
+  if (state->trial_id == 0)
+    return {ReplyStatus::kNotFound, nullptr, state->info.id + " has no trial recording", false};
+  // Answered once the end is written; the trial's samples are committed within one
+  // commit interval, under its id (waiting for them would block the loop).
+  const int64_t id = state->trial_id;
+  const uint64_t ticket = StopTrial(state, now, storage::TrialState::kComplete);
+  return ReplyWhenWritten(ticket, request,
+                          {ReplyStatus::kOk, {{"actuator", state->info.id}, {"trial", id}}, ""});
+}
+
+RpcOutcome Service::RpcIdentify(const flexid::rpc_request_t& request, const nlohmann::json& args) {
+  ActuatorState* state = ActuatorArgument(args, true);
+  std::vector<int64_t> trials;
+  if (args.contains("trials")) {
+    for (int64_t id : TrialIdsArgument(args, "trials", 100)) {
+      const auto trial = db.FindTrial(id);
+      if (!trial || trial->actuator_id != state->info.id)
+        return {ReplyStatus::kNotFound, nullptr,
+                "no trial " + std::to_string(id) + " of " + state->info.id, false};
+      trials.push_back(trial->id);
+    }
+  } else {
+    const auto latest =
+        IntegerArgument(args, "latest", config.identification.latest_trials, 1, 100);
+    // Only trials long enough to identify from (model::MinimumSamplesToIdentify, at the
+    // trial's own sample period).
+    const IdentificationConfig& ic = config.identification;
+    auto long_enough = [&ic](const storage::Trial& t) {
+      if (t.samples < 2 || t.end_utime <= t.start_utime) return false;
+      const double dt_s = 1e-6 * static_cast<double>(t.end_utime - t.start_utime) /
+                          static_cast<double>(t.samples - 1);
+      return static_cast<size_t>(t.samples) >=
+             model::MinimumSamplesToIdentify(ic.zeros + ic.poles + 2, ic.max_delay_s, dt_s);
+    };
+    for (const storage::Trial& t : db.Trials(state->info.id, 1000)) {
+      if (t.state == storage::TrialState::kRecording || !long_enough(t)) continue;
+      trials.push_back(t.id);
+      if (static_cast<int64_t>(trials.size()) == latest) break;
+    }
+    if (trials.empty())
+      return {ReplyStatus::kNotFound, nullptr,
+              state->info.id + " has no finished trial long enough to identify from", false};
+  }
+  storage::SampleWriter* samples = writer.get();  // flushed on the worker: Flush() blocks
+  const std::string database = config.database, id = state->info.id;
+  const IdentificationConfig options = config.identification;
+  const RpcContext context{request.request_id, request.client_id};
+  if (!worker->Submit([database, id, trials, options, context, samples] {
+        if (!samples->Flush())  // the worker reads what is committed
+          return IdentificationResult{
+              {context, id, "cannot commit samples: " + samples->last_error()}};
+        return RunIdentification(database, id, trials, options, context);
+      }))
+    return {ReplyStatus::kBusy, nullptr,
+            "an identification is already running; try again when it ends", false};
+  spdlog::info("identification started [actuator: {}, trials: {}]", id,
+               nlohmann::json(trials).dump());
+  return {ReplyStatus::kOk, nullptr, "", true};
+}
+
+RpcOutcome Service::RpcDiagnose(const flexid::rpc_request_t& request, const nlohmann::json& args) {
+  ActuatorState* state = ActuatorArgument(args, true);
+  // "trial": one; "trials": several, in the order given; "recent": the latest K
+  // finished ones, oldest first; none: the latest finished one.
+  if (args.contains("trial") + args.contains("trials") + args.contains("recent") > 1)
+    throw ArgumentError("give one of \"trial\", \"trials\" and \"recent\"");
+  std::vector<int64_t> trial_ids;
+  if (args.contains("trial"))
+    trial_ids = {RequiredIntegerArgument(args, "trial", 1, std::numeric_limits<int64_t>::max())};
+  else if (args.contains("trials"))
+    trial_ids = TrialIdsArgument(args, "trials", model::kMaxDiagnosedRecordings);
+  for (int64_t trial_id : trial_ids) {
+    const auto trial = db.FindTrial(trial_id);
+    if (!trial || trial->actuator_id != state->info.id)
+      return {ReplyStatus::kNotFound, nullptr,
+              "no trial " + std::to_string(trial_id) + " of " + state->info.id, false};
+  }
+  if (trial_ids.empty()) {
+    const int64_t recent = IntegerArgument(args, "recent", 1, 1, model::kMaxDiagnosedRecordings);
+    for (const storage::Trial& t : db.Trials(state->info.id, 1000))
+      if (t.state != storage::TrialState::kRecording && t.samples >= 200 &&
+          static_cast<int64_t>(trial_ids.size()) < recent)
+        trial_ids.insert(trial_ids.begin(), t.id);
+    if (trial_ids.empty())
+      return {ReplyStatus::kNotFound, nullptr,
+              state->info.id + " has no finished trial to diagnose", false};
+  }
+  bool use_model = true;
+  if (const auto it = args.find("use_model"); it != args.end()) {
+    if (!it->is_boolean()) throw ArgumentError("argument \"use_model\" must be true or false");
+    use_model = it->get<bool>();
+  }
+  storage::SampleWriter* samples = writer.get();
+  const std::string database = config.database, id = state->info.id;
+  const RpcContext context{request.request_id, request.client_id};
+  const int64_t max_samples = config.identification.max_diagnosis_samples;
+  if (!worker->Submit([database, id, trial_ids, use_model, max_samples, context, samples] {
+        if (!samples->Flush())
+          return DiagnosisResult{
+              {context, id, "cannot commit samples: " + samples->last_error()}, nullptr, trial_ids};
+        return RunDiagnosis(database, id, trial_ids, use_model, max_samples, context);
+      }))
+    return {ReplyStatus::kBusy, nullptr,
+            "an identification or diagnosis is already running; try again when it ends", false};
+  spdlog::info("diagnosis started [actuator: {}, trials: {}]", id,
+               nlohmann::json(trial_ids).dump());
+  return {ReplyStatus::kOk, nullptr, "", true};
+}
+
+}  // namespace flexid::daemon
