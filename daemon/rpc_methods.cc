@@ -10,6 +10,7 @@
 #include "flexid/version.h"
 #include "model/diagnose.h"
 #include "model/identify.h"
+#include "storage/queries.h"
 #include "storage/record_json.h"
 
 namespace flexid::daemon {
@@ -113,11 +114,11 @@ struct RpcMethod {
 constexpr RpcMethod kRpcMethods[] = {
     {"status", Access::kReadOnly, &Service::RpcStatus},
     {"actuators", Access::kReadOnly, &Service::RpcActuators},
-    {"trials", Access::kReadOnly, &Service::RpcTrials},
-    {"trial_samples", Access::kReadOnly, &Service::RpcTrialSamples},
-    {"models", Access::kReadOnly, &Service::RpcModels},
-    {"model", Access::kReadOnly, &Service::RpcModel},
-    {"alerts", Access::kReadOnly, &Service::RpcAlerts},
+    {"trials", Access::kReadOnly, &Service::RpcStoredQuery},
+    {"trial_samples", Access::kReadOnly, &Service::RpcStoredQuery},
+    {"models", Access::kReadOnly, &Service::RpcStoredQuery},
+    {"model", Access::kReadOnly, &Service::RpcStoredQuery},
+    {"alerts", Access::kReadOnly, &Service::RpcStoredQuery},
     {"model_activate", Access::kSigned, &Service::RpcModelActivate},
     {"trial_start", Access::kSigned, &Service::RpcTrialControl},
     {"trial_stop", Access::kSigned, &Service::RpcTrialControl},
@@ -201,46 +202,17 @@ RpcOutcome Service::RpcActuators(const flexid::rpc_request_t&, const nlohmann::j
   return {ReplyStatus::kOk, list, "", false};
 }
 
-RpcOutcome Service::RpcTrials(const flexid::rpc_request_t&, const nlohmann::json& args) {
-  const ActuatorState* state = ActuatorArgument(args, false);
-  std::optional<std::string> filter;
-  if (state) filter = state->info.id;
-  nlohmann::json list = nlohmann::json::array();
-  for (const storage::Trial& t :
-       db.Trials(filter, static_cast<int>(IntegerArgument(args, "limit", 100, 1, 10000))))
-    list.push_back(storage::TrialJson(t));
-  return {ReplyStatus::kOk, list, "", false};
-}
-
-RpcOutcome Service::RpcTrialSamples(const flexid::rpc_request_t&, const nlohmann::json& args) {
-  const int64_t id = RequiredIntegerArgument(args, "trial", 1, INT64_MAX);
-  const auto trial = db.FindTrial(id);
-  if (!trial) return {ReplyStatus::kNotFound, nullptr, "no trial " + std::to_string(id), false};
-  // Pages by offset, or (cheaper for long trials) by the last utime of the previous page.
-  const int64_t offset = IntegerArgument(args, "offset", 0, 0, INT64_MAX);
-  const int64_t after = IntegerArgument(args, "after_utime", INT64_MIN, INT64_MIN, INT64_MAX);
-  const int64_t limit = IntegerArgument(args, "limit", 5000, 1, 20000);
-  const std::vector<storage::Sample> page = db.SamplesPage(id, after, offset, limit);
-  return {ReplyStatus::kOk, storage::SamplesPageJson(*trial, offset, page), "", false};
-}
-
-RpcOutcome Service::RpcModels(const flexid::rpc_request_t&, const nlohmann::json& args) {
-  ActuatorState* state = ActuatorArgument(args, true);
-  nlohmann::json list = nlohmann::json::array();
-  for (const storage::ModelRecord& m : db.Models(state->info.id))
-    list.push_back(storage::ModelSummaryJson(m));
-  return {ReplyStatus::kOk, list, "", false};
-}
-
-RpcOutcome Service::RpcModel(const flexid::rpc_request_t&, const nlohmann::json& args) {
-  ActuatorState* state = ActuatorArgument(args, true);
-  const auto version = static_cast<int32_t>(IntegerArgument(args, "version", 0, 0, INT32_MAX));
-  const auto m =
-      version == 0 ? db.ActiveModel(state->info.id) : db.FindModel(state->info.id, version);
-  if (!m) return {ReplyStatus::kNotFound, nullptr, "no such model of " + state->info.id, false};
-  nlohmann::json out = storage::ModelSummaryJson(*m);
-  out["model"] = nlohmann::json::parse(m->model_json);
-  return {ReplyStatus::kOk, out, "", false};
+// trials, trial_samples, models, model and alerts: storage/queries.h answers them from the
+// file, as `flexid --db` does.
+RpcOutcome Service::RpcStoredQuery(const flexid::rpc_request_t& request,
+                                   const nlohmann::json& args) {
+  try {
+    return {ReplyStatus::kOk, storage::AnswerQuery(db, request.method, args), "", false};
+  } catch (const storage::QueryError& e) {
+    return {e.kind == storage::QueryError::Kind::kNotFound ? ReplyStatus::kNotFound
+                                                           : ReplyStatus::kBadRequest,
+            nullptr, e.what(), false};
+  }
 }
 
 RpcOutcome Service::RpcModelActivate(const flexid::rpc_request_t& request,
@@ -256,18 +228,6 @@ RpcOutcome Service::RpcModelActivate(const flexid::rpc_request_t& request,
       [this, actuator = state->info.id, record = *record] {
         LoadModel(&actuators.at(actuator), record);
       });
-}
-
-RpcOutcome Service::RpcAlerts(const flexid::rpc_request_t&, const nlohmann::json& args) {
-  const ActuatorState* state = ActuatorArgument(args, false);
-  std::optional<std::string> filter;
-  if (state) filter = state->info.id;
-  nlohmann::json list = nlohmann::json::array();
-  for (const storage::AlertRecord& a :
-       db.Alerts(filter, IntegerArgument(args, "since_utime", 0, 0, INT64_MAX),
-                 static_cast<int>(IntegerArgument(args, "limit", 100, 1, 10000))))
-    list.push_back(storage::AlertJson(a));
-  return {ReplyStatus::kOk, list, "", false};
 }
 
 RpcOutcome Service::RpcTrialControl(const flexid::rpc_request_t& request,

@@ -216,11 +216,7 @@ struct Service {
   // The methods (rpc_methods.cc: kRpcMethods).
   RpcOutcome RpcStatus(const flexid::rpc_request_t& request, const nlohmann::json& args);
   RpcOutcome RpcActuators(const flexid::rpc_request_t& request, const nlohmann::json& args);
-  RpcOutcome RpcTrials(const flexid::rpc_request_t& request, const nlohmann::json& args);
-  RpcOutcome RpcTrialSamples(const flexid::rpc_request_t& request, const nlohmann::json& args);
-  RpcOutcome RpcModels(const flexid::rpc_request_t& request, const nlohmann::json& args);
-  RpcOutcome RpcModel(const flexid::rpc_request_t& request, const nlohmann::json& args);
-  RpcOutcome RpcAlerts(const flexid::rpc_request_t& request, const nlohmann::json& args);
+  RpcOutcome RpcStoredQuery(const flexid::rpc_request_t& request, const nlohmann::json& args);
   RpcOutcome RpcModelActivate(const flexid::rpc_request_t& request, const nlohmann::json& args);
   RpcOutcome RpcTrialControl(const flexid::rpc_request_t& request, const nlohmann::json& args);
   RpcOutcome RpcIdentify(const flexid::rpc_request_t& request, const nlohmann::json& args);
