@@ -68,7 +68,11 @@ void Service::StoreAlert(storage::AlertRecord record) {
 void Service::Raise(ActuatorState* state, const std::vector<Alert>& alerts) {
   for (const Alert& alert : alerts) {
     flexid::alert_t out;
-    out.utime = state->deflection_utime != kNoTime ? state->deflection_utime : state->voltage_utime;
+    // Message time: the actuator's latest sample, or before it has any, the latest of any
+    // actuator (or the wall clock), so that the alert is found by a query from time 0.
+    out.utime = state->deflection_utime != kNoTime ? state->deflection_utime
+                : state->voltage_utime != kNoTime  ? state->voltage_utime
+                                                   : LatestUtime();
     out.actuator_id = state->info.id;
     out.kind = alert.kind;
     out.severity = static_cast<int8_t>(alert.severity);

@@ -149,11 +149,11 @@ class WriterFaults : public testing::InProcessDaemonTest {
     return replies.front().second;
   }
 
-  // All alerts in the file (whatever their utime: one raised before any sample carries
-  // INT64_MIN), read with a connection of the test's own.
+  // All alerts in the file, as a query from time 0 finds them (an alert raised before any
+  // sample is stamped with the latest message time or the wall clock), read with a
+  // connection of the test's own.
   std::vector<storage::AlertRecord> StoredAlerts() const {
-    return storage::Database::Open(config_.database)
-        .Alerts(std::nullopt, std::numeric_limits<int64_t>::min(), -1);
+    return storage::Database::Open(config_.database).Alerts(std::nullopt, 0, -1);
   }
   static size_t Count(const std::vector<storage::AlertRecord>& stored, const flexid::alert_t& a) {
     size_t n = 0;
