@@ -44,8 +44,6 @@ std::vector<double> SimulateAugmented(const TsModel& baseline, const Recording& 
 // Diagnose
 // -----------------------------------------------------------------------------------------
 
-namespace {}  // namespace
-
 namespace {
 
 // One diagnosis (Diagnose, diagnose.h): its stages, in order, share the evidence (data),
