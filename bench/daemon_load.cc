@@ -1159,7 +1159,7 @@ int main(int argc, char** argv) {
   std::vector<std::pair<double, int>> schedule;  // identifications: {t in s, actuator}
   if (opt.identify_at > 0) {
     plan.restart_k = static_cast<int64_t>(std::llround((opt.identify_at - 1) * opt.rate_hz));
-    // The identification needs max_delay_s / dt + 50 samples (model/identify.cc) and
+    // The identification needs max_delay_s / dt + 50 samples (model/identify/identify.cc) and
     // the trial must end before the request: L00's first trial gets a history before t0.
     plan.history = std::max<int64_t>(
         0, static_cast<int64_t>(std::llround(opt.first_trial_s * opt.rate_hz)) - plan.restart_k);

@@ -13,9 +13,9 @@
 #include <random>
 #include <string>
 
-#include "model/identify_global.h"
-#include "model/presets.h"
-#include "model/simulate.h"
+#include "model/core/presets.h"
+#include "model/core/simulate.h"
+#include "model/identify/identify_global.h"
 
 int main(int argc, char** argv) {
   using namespace flexid::model;

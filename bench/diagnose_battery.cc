@@ -1,4 +1,4 @@
-// The mismatch diagnosis (model/diagnose.h) on fresh cases of the effect battery
+// The mismatch diagnosis (model/diagnose/diagnose.h) on fresh cases of the effect battery
 // (tests/effect_battery.h: the independent T-S test plant with at most one concealed effect
 // formulated otherwise than the diagnosis's catalogue, on a protocol drawn from a lab's
 // usual set). Case i has the seed SEED + i; every sixth case (i = 5, 11, ...) is clean, the
@@ -26,9 +26,9 @@
 #include <vector>
 
 #include "effect_battery.h"
-#include "model/diagnose.h"
-#include "model/identify_global.h"
-#include "model/simulate.h"
+#include "model/core/simulate.h"
+#include "model/diagnose/diagnose.h"
+#include "model/identify/identify_global.h"
 
 namespace {
 

@@ -15,10 +15,10 @@
 
 #include <random>
 
-#include "model/identify.h"
-#include "model/identify_global.h"
-#include "model/presets.h"
-#include "model/simulate.h"
+#include "model/core/presets.h"
+#include "model/core/simulate.h"
+#include "model/identify/identify.h"
+#include "model/identify/identify_global.h"
 
 namespace {
 

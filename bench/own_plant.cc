@@ -1,4 +1,4 @@
-// Global identification (model/identify_global.h, what `flexid identify` runs) on fresh
+// Global identification (model/identify/identify_global.h, what `flexid identify` runs) on fresh
 // plants of the independent T-S test plant (tests/ts_plant.h: its own realisation, RK4
 // integrator and smoothstep memberships on the delayed voltage; each rule driven by its
 // share of the voltage). Per draw: fit on one recording, predict a fresh 600 s recording
@@ -23,8 +23,8 @@
 #include <string>
 #include <vector>
 
-#include "model/identify_global.h"
-#include "model/simulate.h"
+#include "model/core/simulate.h"
+#include "model/identify/identify_global.h"
 #include "ts_plant.h"
 
 int main(int argc, char** argv) {

@@ -14,8 +14,8 @@
 #include <numbers>
 #include <random>
 
-#include "model/presets.h"
-#include "model/simulate.h"
+#include "model/core/presets.h"
+#include "model/core/simulate.h"
 
 namespace {
 

@@ -8,7 +8,7 @@
 #include "clients/cli/command.h"
 #include "clients/cli/source.h"
 #include "flexid/version.h"
-#include "model/errors.h"
+#include "model/core/errors.h"
 
 int main(int argc, char** argv) {
   CLI::App app{"flexid: identify, simulate and diagnose models of ionic soft actuators"};

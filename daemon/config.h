@@ -8,20 +8,20 @@
 #include <vector>
 
 #include "bus/channels.h"
-#include "model/monitor.h"
+#include "model/diagnose/monitor.h"
 #include "storage/database.h"
 
 namespace flexid::daemon {
 
-// The residual monitor is pure logic and lives in model/ (model/monitor.h).
+// The residual monitor is pure logic and lives in model/ (model/diagnose/monitor.h).
 using model::Alert;
 using model::MonitorOptions;
 using model::ResidualMonitor;
 
 struct IdentificationConfig {
   // "global": the whole T-S model in one fit, its structure chosen on held-out data
-  // (model/identify_global.h), as `flexid identify` does; "time": a transfer function per
-  // level, blended (model/identify_ts.h).
+  // (model/identify/identify_global.h), as `flexid identify` does; "time": a transfer function per
+  // level, blended (model/identify/identify_ts.h).
   std::string method = "global";
   // Orders: "time" always uses them; "global" only when the configuration gives them,
   // and chooses them on held-out data otherwise.

@@ -1,12 +1,12 @@
 // The online predictor's part of the loop: the active model of each actuator loaded (and
 // hot-swapped), stepped on every voltage and deflection, its prediction published, and
-// the residual handed to the actuator's monitor (model/monitor.h), whose alerts go to the
+// the residual handed to the actuator's monitor (model/diagnose/monitor.h), whose alerts go to the
 // bus and the writer.
 #include <flexid/alert_t.hpp>
 #include <flexid/prediction_t.hpp>
 
 #include "daemon/service.h"
-#include "model/model_file.h"
+#include "model/core/model_file.h"
 
 namespace flexid::daemon {
 

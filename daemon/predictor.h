@@ -1,7 +1,7 @@
 // The live prediction of one actuator (DESIGN.md: "online predictor"): its active model
 // run on the voltage in force, in message time. The loop steps it on every voltage and
 // deflection message and hands the residual to the actuator's residual monitor
-// (model/monitor.h); predictor.cc holds that part of the loop.
+// (model/diagnose/monitor.h); predictor.cc holds that part of the loop.
 #pragma once
 
 #include <cmath>
@@ -9,7 +9,7 @@
 #include <optional>
 #include <vector>
 
-#include "model/simulate.h"
+#include "model/core/simulate.h"
 
 namespace flexid::daemon {
 

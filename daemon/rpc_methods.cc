@@ -8,8 +8,8 @@
 #include "bus/ids.h"
 #include "daemon/service.h"
 #include "flexid/version.h"
-#include "model/diagnose.h"
-#include "model/identify.h"
+#include "model/diagnose/diagnose.h"
+#include "model/identify/identify.h"
 #include "storage/queries.h"
 #include "storage/record_json.h"
 

@@ -12,10 +12,10 @@
 #include "bus/clock.h"
 #include "daemon/service.h"
 #include "flexid/version.h"
-#include "model/diagnose.h"
-#include "model/identify_global.h"
-#include "model/identify_ts.h"
-#include "model/model_file.h"
+#include "model/core/model_file.h"
+#include "model/diagnose/diagnose.h"
+#include "model/identify/identify_global.h"
+#include "model/identify/identify_ts.h"
 #include "storage/record_json.h"
 
 namespace flexid::daemon {
@@ -265,7 +265,7 @@ void Service::OnWorkerResult(JobResult& result) {
 }
 
 // A diagnosis that names an effect is an alert of that effect's kind (the catalogue of
-// model/diagnose.h), spanning the trial, with the explanation as its text.
+// model/diagnose/diagnose.h), spanning the trial, with the explanation as its text.
 void Service::ReportDiagnosis(const DiagnosisResult& result) {
   const nlohmann::json& d = result.diagnosis;
   auto it = actuators.find(result.actuator_id);

@@ -19,8 +19,8 @@
 #include "cli_process.h"
 #include "clients/cli/trial_import.h"
 #include "live_daemon.h"
-#include "model/errors.h"
-#include "model/recording.h"
+#include "model/core/errors.h"
+#include "model/core/recording.h"
 #include "scratch_dir.h"
 #include "storage/database.h"
 

@@ -7,7 +7,7 @@
 #include <nlohmann/json.hpp>
 
 #include "cli_process.h"
-#include "model/physics.h"
+#include "model/physics/physics.h"
 #include "scratch_dir.h"
 
 namespace flexid {

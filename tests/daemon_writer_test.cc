@@ -33,8 +33,8 @@
 #include "daemon/daemon.h"
 #include "fault_harness.h"
 #include "lcmtypes/message_auth.h"
-#include "model/model_file.h"
-#include "model/simulate.h"
+#include "model/core/model_file.h"
+#include "model/core/simulate.h"
 #include "scratch_dir.h"
 #include "storage/database.h"
 

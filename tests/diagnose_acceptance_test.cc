@@ -1,4 +1,4 @@
-// Acceptance test of the mismatch diagnosis (model/diagnose.h), the issue's criteria read
+// Acceptance test of the mismatch diagnosis (model/diagnose/diagnose.h), the issue's criteria read
 // literally, on recordings it has never seen from the independent lab (effect_plant.h):
 //
 //   "On recordings it has never seen, from an independent simulator, with one of the
@@ -36,9 +36,9 @@
 #include <vector>
 
 #include "effect_plant.h"
-#include "model/diagnose.h"
-#include "model/presets.h"
-#include "model/ts_fuzzy.h"
+#include "model/core/presets.h"
+#include "model/core/ts_fuzzy.h"
+#include "model/diagnose/diagnose.h"
 
 namespace flexid::testing {
 namespace {

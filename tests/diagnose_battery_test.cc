@@ -1,4 +1,4 @@
-// The mismatch diagnosis (model/diagnose.h) on the effect battery (effect_battery.h): the
+// The mismatch diagnosis (model/diagnose/diagnose.h) on the effect battery (effect_battery.h): the
 // independent T-S test plant with one concealed effect formulated otherwise than the
 // diagnosis's catalogue (two relaxation time constants, a random-walk or delayed thermal
 // drift, a Preisach model, a square-root-of-charge wear, current-limited electrolysis, a
@@ -52,9 +52,9 @@
 #include <vector>
 
 #include "effect_battery.h"
-#include "model/diagnose.h"
-#include "model/identify_global.h"
-#include "model/simulate.h"
+#include "model/core/simulate.h"
+#include "model/diagnose/diagnose.h"
+#include "model/identify/identify_global.h"
 
 namespace flexid::testing {
 namespace {

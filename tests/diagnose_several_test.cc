@@ -11,9 +11,9 @@
 #include <vector>
 
 #include "effect_battery.h"
-#include "model/diagnose.h"
-#include "model/errors.h"
-#include "model/presets.h"
+#include "model/core/errors.h"
+#include "model/core/presets.h"
+#include "model/diagnose/diagnose.h"
 #include "ts_plant.h"
 
 namespace flexid {

@@ -2,7 +2,7 @@
 // effect or none concealed at a few times the sensor noise): the verdict is checked against
 // tests/concealed_answers.txt, which the diagnosis never sees. Plus the catalogue's
 // augmentation round trip and bad input.
-#include "model/diagnose.h"
+#include "model/diagnose/diagnose.h"
 
 #include <gtest/gtest.h>
 
@@ -11,10 +11,10 @@
 #include <sstream>
 #include <string>
 
-#include "model/errors.h"
-#include "model/model_file.h"
-#include "model/presets.h"
-#include "model/recording.h"
+#include "model/core/errors.h"
+#include "model/core/model_file.h"
+#include "model/core/presets.h"
+#include "model/core/recording.h"
 
 namespace flexid {
 namespace {

@@ -1,4 +1,4 @@
-// An acceptance battery for the mismatch diagnosis (model/diagnose.h) on physics its
+// An acceptance battery for the mismatch diagnosis (model/diagnose/diagnose.h) on physics its
 // catalogue does not contain: the independent T-S test plant (ts_plant.h) plus at most one
 // concealed effect, each formulated otherwise than the diagnosis models it (effects.cc
 // Catalogue, ApplyInputEffect, ApplyOutputEffect) and otherwise than the older lab
@@ -120,7 +120,7 @@
 #include <string>
 #include <vector>
 
-#include "model/recording.h"
+#include "model/core/recording.h"
 #include "ts_plant.h"
 
 namespace flexid::testing {

@@ -1,4 +1,4 @@
-// An independent "lab" for tests of the mismatch diagnosis (model/diagnose.h): a
+// An independent "lab" for tests of the mismatch diagnosis (model/diagnose/diagnose.h): a
 // continuous-time plant driven by a continuous voltage waveform, with the catalogue's
 // effects formulated as physics in continuous time, integrated by fixed-step RK4 and
 // sampled the way the lab samples its voltage column and its deflection sensor.
@@ -54,8 +54,8 @@
 #include <variant>
 #include <vector>
 
-#include "model/recording.h"
-#include "model/transfer_function.h"
+#include "model/core/recording.h"
+#include "model/core/transfer_function.h"
 
 namespace flexid::testing {
 
@@ -244,7 +244,7 @@ enum class LabEffect {
   kPolarityAsymmetry,
 };
 
-// The diagnosis catalogue's names (model/diagnose.h EffectName), "none" for kNone.
+// The diagnosis catalogue's names (model/diagnose/diagnose.h EffectName), "none" for kNone.
 inline const char* LabEffectName(LabEffect effect) {
   switch (effect) {
     case LabEffect::kNone:
@@ -269,7 +269,7 @@ inline const char* LabEffectName(LabEffect effect) {
   return "?";
 }
 
-// The catalogue, in model/diagnose.h's order.
+// The catalogue, in model/diagnose/diagnose.h's order.
 inline std::vector<LabEffect> LabCatalogue() {
   return {LabEffect::kBackRelaxation,
           LabEffect::kCreep,

@@ -1,7 +1,7 @@
-// The frequency-response route (model/frequency_response.h) against known truths: the
+// The frequency-response route (model/identify/frequency_response.h) against known truths: the
 // analytic response of a first-order lag (data integrated by RK4, test_util.h), square-wave
 // recordings simulated from known models, and the seed's 8 V model (presets.h).
-#include "model/frequency_response.h"
+#include "model/identify/frequency_response.h"
 
 #include <gtest/gtest.h>
 
@@ -15,9 +15,9 @@
 #include <stdexcept>
 #include <string>
 
-#include "model/errors.h"
-#include "model/presets.h"
-#include "model/simulate.h"
+#include "model/core/errors.h"
+#include "model/core/presets.h"
+#include "model/core/simulate.h"
 #include "tests/test_util.h"
 
 namespace flexid::model {

@@ -2,7 +2,7 @@
 // without the simulator under test: the curvature transfer function (physics.h, checked
 // in physics_test) is integrated with the RK4 reference of test_util.h, the dead time is a
 // shift of the input function, and the arc map is written out here.
-#include "model/greybox.h"
+#include "model/physics/greybox.h"
 
 #include <gtest/gtest.h>
 
@@ -15,8 +15,8 @@
 #include <utility>
 #include <vector>
 
-#include "model/errors.h"
-#include "model/metrics.h"
+#include "model/core/errors.h"
+#include "model/core/metrics.h"
 #include "test_util.h"
 
 namespace flexid::model {

@@ -1,4 +1,4 @@
-// Global T-S identification (model/identify_global.h) on plants of the independent
+// Global T-S identification (model/identify/identify_global.h) on plants of the independent
 // T-S plant (ts_plant.h): fits on a staircase, scored on a fresh multilevel recording
 // against the noise-free deflection.
 //
@@ -22,9 +22,9 @@
 #include <string>
 #include <vector>
 
-#include "model/identify_global.h"
-#include "model/simulate.h"
-#include "model/transfer_function.h"
+#include "model/core/simulate.h"
+#include "model/core/transfer_function.h"
+#include "model/identify/identify_global.h"
 #include "ts_plant.h"
 
 namespace flexid::testing {

@@ -1,7 +1,7 @@
-// Global T-S identification (model/identify_global.h): what it guarantees whatever the
+// Global T-S identification (model/identify/identify_global.h): what it guarantees whatever the
 // data, and its one-line errors. Its accuracy on plants flexid did not write is measured
 // by ../shared/data/independent/score (README, "Identification").
-#include "model/identify_global.h"
+#include "model/identify/identify_global.h"
 
 #include <gtest/gtest.h>
 
@@ -12,8 +12,8 @@
 #include <vector>
 
 #include "gaussian.h"
-#include "model/errors.h"
-#include "model/simulate.h"
+#include "model/core/errors.h"
+#include "model/core/simulate.h"
 
 namespace flexid::model {
 namespace {

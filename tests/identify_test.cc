@@ -1,13 +1,13 @@
 // Identification against known truths: recordings simulated from the seed's models.
-#include "model/identify.h"
+#include "model/identify/identify.h"
 
 #include <gtest/gtest.h>
 
 #include <random>
 
-#include "model/errors.h"
-#include "model/presets.h"
-#include "model/simulate.h"
+#include "model/core/errors.h"
+#include "model/core/presets.h"
+#include "model/core/simulate.h"
 
 namespace flexid::model {
 namespace {

@@ -1,14 +1,14 @@
 // T-S identification from recordings of a voltage-dependent truth.
-#include "model/identify_ts.h"
+#include "model/identify/identify_ts.h"
 
 #include <gtest/gtest.h>
 
 #include <random>
 
-#include "model/errors.h"
-#include "model/metrics.h"
-#include "model/presets.h"
-#include "model/simulate.h"
+#include "model/core/errors.h"
+#include "model/core/metrics.h"
+#include "model/core/presets.h"
+#include "model/core/simulate.h"
 
 namespace flexid::model {
 namespace {

@@ -1,4 +1,4 @@
-#include "model/levels.h"
+#include "model/core/levels.h"
 
 #include <gtest/gtest.h>
 
@@ -13,7 +13,7 @@
 #include <string>
 #include <vector>
 
-#include "model/errors.h"
+#include "model/core/errors.h"
 
 namespace flexid::model {
 namespace {

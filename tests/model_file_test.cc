@@ -1,4 +1,4 @@
-#include "model/model_file.h"
+#include "model/core/model_file.h"
 
 #include <gtest/gtest.h>
 
@@ -10,7 +10,7 @@
 #include <sstream>
 #include <string>
 
-#include "model/errors.h"
+#include "model/core/errors.h"
 #include "scratch_dir.h"
 
 namespace flexid::model {

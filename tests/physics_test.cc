@@ -1,7 +1,7 @@
-// Tests of the seed's physics chain (model/physics.h) against truths computed here
+// Tests of the seed's physics chain (model/physics/physics.h) against truths computed here
 // independently: the complex tanh from <complex>, the Mittag-Leffler series summed
 // directly, closed forms of the arc geometry, and the scaling laws worked out by hand.
-#include "model/physics.h"
+#include "model/physics/physics.h"
 
 #include <gtest/gtest.h>
 
@@ -14,8 +14,8 @@
 #include <string>
 #include <vector>
 
-#include "model/polynomial.h"
-#include "model/transfer_function.h"
+#include "model/core/polynomial.h"
+#include "model/core/transfer_function.h"
 
 namespace flexid::model {
 namespace {

@@ -1,4 +1,4 @@
-#include "model/polynomial.h"
+#include "model/core/polynomial.h"
 
 #include <gtest/gtest.h>
 

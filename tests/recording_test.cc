@@ -1,4 +1,4 @@
-#include "model/recording.h"
+#include "model/core/recording.h"
 
 #include <gtest/gtest.h>
 
@@ -13,7 +13,7 @@
 #include <sstream>
 #include <string>
 
-#include "model/errors.h"
+#include "model/core/errors.h"
 #include "scratch_dir.h"
 
 namespace flexid::model {

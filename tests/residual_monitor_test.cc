@@ -10,7 +10,7 @@
 #include <vector>
 
 #include "gaussian.h"
-#include "model/monitor.h"
+#include "model/diagnose/monitor.h"
 
 namespace flexid::model {
 namespace {

@@ -1,4 +1,4 @@
-#include "model/residual_tests.h"
+#include "model/core/residual_tests.h"
 
 #include <gtest/gtest.h>
 

@@ -32,10 +32,10 @@
 #include "clients/rig/runner.h"
 #include "lcm_subscribe.h"
 #include "lcmtypes/message_auth.h"
-#include "model/errors.h"
-#include "model/presets.h"
-#include "model/recording.h"
-#include "model/simulate.h"
+#include "model/core/errors.h"
+#include "model/core/presets.h"
+#include "model/core/recording.h"
+#include "model/core/simulate.h"
 #include "scratch_dir.h"
 
 namespace flexid {

@@ -1,8 +1,8 @@
-// The bounded secant Levenberg-Marquardt solver (model/secant_lm.h) on problems with a known
+// The bounded secant Levenberg-Marquardt solver (model/core/secant_lm.h) on problems with a known
 // answer: it reaches the optimum, keeps to its bounds, holds fixed parameters, refuses
 // inadmissible points, and spends fewer residual evaluations than forward differences at
 // every iteration would.
-#include "model/secant_lm.h"
+#include "model/core/secant_lm.h"
 
 #include <gtest/gtest.h>
 

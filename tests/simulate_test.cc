@@ -1,11 +1,11 @@
-#include "model/simulate.h"
+#include "model/core/simulate.h"
 
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <random>
 
-#include "model/presets.h"
+#include "model/core/presets.h"
 #include "test_util.h"
 
 namespace flexid::model {

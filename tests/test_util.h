@@ -9,7 +9,7 @@
 #include <cmath>
 #include <vector>
 
-#include "model/transfer_function.h"
+#include "model/core/transfer_function.h"
 
 namespace flexid::testing {
 

@@ -1,4 +1,4 @@
-#include "model/transfer_function.h"
+#include "model/core/transfer_function.h"
 
 #include <gtest/gtest.h>
 
@@ -6,8 +6,8 @@
 #include <complex>
 #include <numbers>
 
-#include "model/presets.h"
-#include "model/state_space.h"
+#include "model/core/presets.h"
+#include "model/core/state_space.h"
 #include "test_util.h"
 
 namespace flexid::model {

@@ -1,12 +1,12 @@
-#include "model/ts_fuzzy.h"
+#include "model/core/ts_fuzzy.h"
 
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <limits>
 
-#include "model/presets.h"
-#include "model/simulate.h"
+#include "model/core/presets.h"
+#include "model/core/simulate.h"
 #include "test_util.h"
 
 namespace flexid::model {

@@ -1,5 +1,5 @@
 // An independent Takagi-Sugeno test plant for the global identification
-// (model/identify_global.h): R local transfer functions of the seed's Eq. (18) form,
+// (model/identify/identify_global.h): R local transfer functions of the seed's Eq. (18) form,
 // drawn from a seed inside Eq. (18)'s coefficient intervals, each realised and integrated
 // here, blended by smooth memberships on the delayed voltage, sampled at 10 Hz with
 // Gaussian sensor noise.
@@ -66,7 +66,7 @@
 // proper) and has the same steady state. kOutputBlend stays available for comparison.
 // A consequence: after a voltage change the old rule's share relaxes with the old rule's
 // dynamics while the new rule's share rises with its own; a model that switches one
-// frozen transfer function with the operating point (model/ts_fuzzy.h) can only
+// frozen transfer function with the operating point (model/core/ts_fuzzy.h) can only
 // approximate that when the rules' dynamics differ.
 #pragma once
 
@@ -81,7 +81,7 @@
 #include <string>
 #include <vector>
 
-#include "model/recording.h"
+#include "model/core/recording.h"
 
 namespace flexid::testing {
 

@@ -1,5 +1,7 @@
 // Checks of the independent T-S test plant (ts_plant.h) itself: its integrator against
 // an exact response, its rules, its draws, the continuity of its blend and its noise.
+#include "ts_plant.h"
+
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -10,10 +12,9 @@
 #include <string>
 #include <vector>
 
-#include "model/identify_global.h"
-#include "model/simulate.h"
-#include "model/transfer_function.h"
-#include "ts_plant.h"
+#include "model/core/simulate.h"
+#include "model/core/transfer_function.h"
+#include "model/identify/identify_global.h"
 
 namespace flexid::testing {
 namespace {

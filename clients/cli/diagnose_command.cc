@@ -6,9 +6,9 @@
 //                             [--json] [--report R.html] [--out AUGMENTED.json]
 //                                                     (here, on stored trials)
 // Several recordings (or trials) of one actuator make one diagnosis from the evidence of
-// all of them (model/diagnose.h).
+// all of them (model/diagnose/diagnose.h).
 // Where a model and a recording disagree, which physics the model leaves out, a model of
-// it, and the held-out improvement (model/diagnose.h; JSON format in DESIGN.md).
+// it, and the held-out improvement (model/diagnose/diagnose.h; JSON format in DESIGN.md).
 //
 // Every form prints the same human output from the diagnosis JSON (PrintHuman), so the
 // answer of flexidd and a diagnosis run here read alike. The report and the augmented
@@ -26,11 +26,11 @@
 #include "clients/cli/diagnosis_report.h"
 #include "clients/cli/format.h"
 #include "clients/cli/source.h"
-#include "model/diagnose.h"
-#include "model/errors.h"
-#include "model/model_file.h"
-#include "model/recording.h"
-#include "model/text_file.h"
+#include "model/core/errors.h"
+#include "model/core/model_file.h"
+#include "model/core/recording.h"
+#include "model/core/text_file.h"
+#include "model/diagnose/diagnose.h"
 
 namespace flexid::cli {
 namespace {

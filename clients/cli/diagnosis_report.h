@@ -20,9 +20,9 @@
 #include <string>
 #include <vector>
 
-#include "model/diagnose.h"
-#include "model/identify.h"
-#include "model/recording.h"
+#include "model/core/recording.h"
+#include "model/diagnose/diagnose.h"
+#include "model/identify/identify.h"
 
 namespace flexid::cli {
 

@@ -5,12 +5,12 @@
 //                                                    (here, on stored trials; nothing stored)
 //
 // Fits the whole T-S model at once, its structure chosen on held-out data
-// (model/identify_global.h); or, with --method time, finds the voltage levels, fits one
+// (model/identify/identify_global.h); or, with --method time, finds the voltage levels, fits one
 // local transfer function with dead time per level and assembles the T-S model
-// (model/identify_ts.h); or, with --structure physics, fits
-// the physics chain's parameters (model/greybox.h); or, with --method frequency, fits the
+// (model/identify/identify_ts.h); or, with --structure physics, fits
+// the physics chain's parameters (model/physics/greybox.h); or, with --method frequency, fits the
 // rational model to frequency responses estimated from square waves
-// (model/frequency_response.h). --json prints the model file document itself, with its
+// (model/identify/frequency_response.h). --json prints the model file document itself, with its
 // fit figures; --out writes it.
 #include <cmath>
 #include <iostream>
@@ -22,15 +22,15 @@
 #include "clients/cli/format.h"
 #include "clients/cli/source.h"
 #include "flexid/version.h"
-#include "model/errors.h"
-#include "model/frequency_response.h"
-#include "model/greybox.h"
-#include "model/identify_global.h"
-#include "model/identify_ts.h"
-#include "model/model_file.h"
-#include "model/physics.h"
-#include "model/recording.h"
-#include "model/simulate.h"
+#include "model/core/errors.h"
+#include "model/core/model_file.h"
+#include "model/core/recording.h"
+#include "model/core/simulate.h"
+#include "model/identify/frequency_response.h"
+#include "model/identify/identify_global.h"
+#include "model/identify/identify_ts.h"
+#include "model/physics/greybox.h"
+#include "model/physics/physics.h"
 
 namespace flexid::cli {
 namespace {
@@ -102,7 +102,7 @@ model::DataSegment WholeRecording(const model::Recording& rec) {
 }
 
 // "LxWxh" in mm -> the same parameters for a beam of that geometry (C_dl scaled with the
-// face area, model/physics.h).
+// face area, model/physics/physics.h).
 model::PhysicalParameters WithGeometryText(const model::PhysicalParameters& reference,
                                            const std::string& option, const std::string& text) {
   double l = 0, w = 0, h = 0;
@@ -169,7 +169,7 @@ void RunFree(const IdentifyArgs& args, model::ModelDocument* doc,
   AddValidation(args, estimate.model, doc);
 }
 
-// --method global: the global T-S fit (model/identify_global.h), the structure chosen on
+// --method global: the global T-S fit (model/identify/identify_global.h), the structure chosen on
 // held-out data unless --zeros/--poles fix the orders.
 void RunGlobal(const IdentifyArgs& args, model::ModelDocument* doc,
                const std::vector<model::Recording>& recordings) {
@@ -243,7 +243,7 @@ void RunPhysics(const IdentifyArgs& args, model::ModelDocument* doc,
       table.AddRow({p.name, FormatNumber(p.value, 5), FormatNumber(p.half_width_95, 3)});
     table.Print(std::cout, "    ");
     std::cout << "  (intervals wider than the value mean the data do not determine that parameter; "
-                 "model/greybox.h)\n";
+                 "model/physics/greybox.h)\n";
   }
   if (!args.predict_geometry_mm.empty()) {
     // Another beam of the same material: the fitted parameters at its geometry, driven by

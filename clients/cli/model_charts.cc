@@ -10,8 +10,8 @@
 #include "clients/cli/command.h"
 #include "clients/cli/format.h"
 #include "clients/cli/source.h"
-#include "model/diagnose.h"
-#include "model/transfer_function.h"
+#include "model/core/transfer_function.h"
+#include "model/diagnose/diagnose.h"
 
 namespace flexid::cli {
 namespace {

@@ -15,9 +15,9 @@
 #include <vector>
 
 #include "clients/cli/svg_plot.h"
-#include "model/model_file.h"
-#include "model/recording.h"
-#include "model/ts_fuzzy.h"
+#include "model/core/model_file.h"
+#include "model/core/recording.h"
+#include "model/core/ts_fuzzy.h"
 
 namespace flexid::cli {
 

@@ -25,10 +25,10 @@
 #include "clients/cli/format.h"
 #include "clients/cli/source.h"
 #include "clients/cli/tf_show.h"
-#include "model/errors.h"
-#include "model/model_file.h"
-#include "model/simulate.h"
-#include "model/transfer_function.h"
+#include "model/core/errors.h"
+#include "model/core/model_file.h"
+#include "model/core/simulate.h"
+#include "model/core/transfer_function.h"
 #include "storage/database.h"
 
 namespace flexid::cli {

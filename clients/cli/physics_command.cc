@@ -1,4 +1,4 @@
-// flexid physics: what the seed's physics chain (Eqs. 1-13, model/physics.h) predicts with
+// flexid physics: what the seed's physics chain (Eqs. 1-13, model/physics/physics.h) predicts with
 // the illustrative S1 parameters: the parameters, how well the N-term rational model of
 // Eq. (13) approximates the exact Eq. (11), and Table 1 predicted vs measured. With
 // --table1, only Table 1: how the deflection scales with L, W and h in the chain and in the
@@ -18,8 +18,8 @@
 
 #include "clients/cli/command.h"
 #include "clients/cli/format.h"
-#include "model/physics.h"
-#include "model/transfer_function.h"
+#include "model/core/transfer_function.h"
+#include "model/physics/physics.h"
 
 namespace flexid::cli {
 namespace {
@@ -122,7 +122,8 @@ nlohmann::json ToJson(const PhysicsReport& r, int terms) {
   const PhysicalParameters& p = r.parameters;
   nlohmann::json parameters = {
       {"source",
-       "illustrative S1 parameters (model/physics.h); alpha calibrated to Table 1 S1, 5.92 mm "
+       "illustrative S1 parameters (model/physics/physics.h); alpha calibrated to Table 1 S1, 5.92 "
+       "mm "
        "at 5 V"},
       {"D_m2_per_s", p.D_m2_per_s},
       {"delta_m", p.delta_m},
@@ -224,7 +225,7 @@ void PrintHuman(const PhysicsReport& r, int terms) {
   const PhysicalParameters& p = r.parameters;
   std::printf(
       "Physical parameters: illustrative S1 (40 x 8 x 2 mm, 0.12 M NaOH); the paper gives\n"
-      "no values, the choices are explained in model/physics.h\n");
+      "no values, the choices are explained in model/physics/physics.h\n");
   std::printf("  %-6s %-12.4g %-8s %s\n", "D", p.D_m2_per_s, "m^2/s",
               "ion diffusion coefficient (effective)");
   std::printf("  %-6s %-12.4g %-8s %s\n", "delta", p.delta_m, "m",
@@ -645,7 +646,8 @@ Table1Report ComputeTable1() {
              model::kSeedTable1DeflectionHalfUnit_mm),
       "Table 1 gives one value per beam and no trial-to-trial scatter, so reading precision is "
       "a lower bound on the uncertainty: 'departs' means beyond reading precision only.",
-      Format("Chain (model/physics.h): K = 3 alpha C_dl (1 + h/delta) V/(W L h^2) with C_dl ~ W "
+      Format("Chain (model/physics/physics.h): K = 3 alpha C_dl (1 + h/delta) V/(W L h^2) with "
+             "C_dl ~ W "
              "L, so K does not depend on W or L and goes as (1 + h/delta)/h^2, ~1/h for h/delta "
              "= %.0f (it would be ~1/h^2 if only the double layer held charge); deflection is "
              "the arc of K over L (~K L^2/2). The predicted exponents depend on the illustrative "

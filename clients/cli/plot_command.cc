@@ -20,8 +20,8 @@
 #include "clients/cli/model_charts.h"
 #include "clients/cli/png_plot.h"
 #include "clients/cli/svg_plot.h"
-#include "model/errors.h"
-#include "model/text_file.h"
+#include "model/core/errors.h"
+#include "model/core/text_file.h"
 
 namespace flexid::cli {
 namespace {

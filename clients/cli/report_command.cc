@@ -23,13 +23,13 @@
 #include "clients/cli/format.h"
 #include "clients/cli/model_charts.h"
 #include "clients/cli/svg_plot.h"
-#include "model/diagnose.h"
-#include "model/errors.h"
-#include "model/identify.h"
-#include "model/identify_ts.h"
-#include "model/model_file.h"
-#include "model/text_file.h"
-#include "model/transfer_function.h"
+#include "model/core/errors.h"
+#include "model/core/model_file.h"
+#include "model/core/text_file.h"
+#include "model/core/transfer_function.h"
+#include "model/diagnose/diagnose.h"
+#include "model/identify/identify.h"
+#include "model/identify/identify_ts.h"
 
 namespace flexid::cli {
 namespace {

@@ -11,13 +11,13 @@
 #include "clients/cli/command.h"
 #include "clients/cli/format.h"
 #include "clients/cli/source.h"
-#include "model/diagnose.h"
-#include "model/errors.h"
-#include "model/metrics.h"
-#include "model/model_file.h"
-#include "model/recording.h"
-#include "model/simulate.h"
-#include "model/text_file.h"
+#include "model/core/errors.h"
+#include "model/core/metrics.h"
+#include "model/core/model_file.h"
+#include "model/core/recording.h"
+#include "model/core/simulate.h"
+#include "model/core/text_file.h"
+#include "model/diagnose/diagnose.h"
 
 namespace flexid::cli {
 namespace {

@@ -16,8 +16,8 @@
 #include <string>
 #include <vector>
 
-#include "model/model_file.h"
-#include "model/recording.h"
+#include "model/core/model_file.h"
+#include "model/core/recording.h"
 #include "storage/database.h"
 
 namespace flexid::cli {

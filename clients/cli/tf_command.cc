@@ -6,8 +6,8 @@
 #include "clients/cli/command.h"
 #include "clients/cli/format.h"
 #include "clients/cli/tf_show.h"
-#include "model/model_file.h"
-#include "model/transfer_function.h"
+#include "model/core/model_file.h"
+#include "model/core/transfer_function.h"
 
 namespace flexid::cli {
 namespace {

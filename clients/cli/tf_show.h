@@ -7,7 +7,7 @@
 #include <ostream>
 #include <string>
 
-#include "model/model_file.h"
+#include "model/core/model_file.h"
 
 namespace flexid::cli {
 

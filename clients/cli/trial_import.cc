@@ -18,7 +18,7 @@
 
 #include "clients/cli/command.h"
 #include "lcmtypes/wire_check.h"
-#include "model/errors.h"
+#include "model/core/errors.h"
 
 namespace flexid::cli {
 namespace {

@@ -38,7 +38,7 @@
 #include <vector>
 
 #include "bus/channels.h"
-#include "model/recording.h"
+#include "model/core/recording.h"
 #include "storage/database.h"
 
 namespace flexid::cli {

@@ -39,7 +39,7 @@
 #include "clients/cli/format.h"
 #include "clients/cli/source.h"
 #include "clients/cli/trial_import.h"
-#include "model/levels.h"
+#include "model/core/levels.h"
 #include "storage/database.h"
 
 namespace flexid::cli {
@@ -146,7 +146,7 @@ nlohmann::json SampleSummary(const StoredTrial& stored) {
   out["voltage_max_V"] = *vmax;
   out["deflection_min_mm"] = *dmin;
   out["deflection_max_mm"] = *dmax;
-  // Levels as identification sees them (model/levels.h): the voltages held on plateaus.
+  // Levels as identification sees them (model/core/levels.h): the voltages held on plateaus.
   nlohmann::json levels = nlohmann::json::array();
   if (n >= 2) {
     try {

@@ -9,7 +9,7 @@
 #include <string>
 
 #include "clients/rig/spec.h"
-#include "model/errors.h"
+#include "model/core/errors.h"
 
 namespace flexid::rig {
 namespace {

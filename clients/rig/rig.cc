@@ -6,8 +6,8 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "model/errors.h"
-#include "model/simulate.h"
+#include "model/core/errors.h"
+#include "model/core/simulate.h"
 
 namespace flexid::rig {
 

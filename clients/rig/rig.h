@@ -31,7 +31,7 @@
 
 #include "clients/rig/effects.h"
 #include "clients/rig/protocol.h"
-#include "model/ts_fuzzy.h"
+#include "model/core/ts_fuzzy.h"
 
 namespace flexid::rig {
 

@@ -26,7 +26,7 @@
 //
 // Offline (--out): the same sample stream (the same seed gives the same noise) is written at
 // once, without the bus and without pacing, as a recording CSV t_s,voltage_V,deflection_mm
-// (model/recording.h) with t_s = k / rate_Hz from 0. With two or more actuators the file
+// (model/core/recording.h) with t_s = k / rate_Hz from 0. With two or more actuators the file
 // has a first column `actuator` (actuator,t_s,voltage_V,deflection_mm), one row per
 // actuator and sample, in time order and the actuators in the order given within a time;
 // such a file is not a recording CSV (its time repeats): select one actuator's rows first.
@@ -65,10 +65,10 @@
 #include "clients/rig/runner.h"
 #include "flexid/version.h"
 #include "lcmtypes/message_auth.h"
-#include "model/errors.h"
-#include "model/model_file.h"
-#include "model/presets.h"
-#include "model/recording.h"
+#include "model/core/errors.h"
+#include "model/core/model_file.h"
+#include "model/core/presets.h"
+#include "model/core/recording.h"
 
 namespace flexid::rig {
 namespace {

@@ -3,7 +3,7 @@
 #include <charconv>
 #include <cmath>
 
-#include "model/errors.h"
+#include "model/core/errors.h"
 
 namespace flexid::rig {
 namespace {

@@ -1,4 +1,4 @@
-// Fuzz target: a model file (model/model_file.h, ParseModelJson), as `flexid simulate|tf
+// Fuzz target: a model file (model/core/model_file.h, ParseModelJson), as `flexid simulate|tf
 // show|diagnose --model` and flexidd read it.
 //
 // Invariants (abort otherwise): only model::InputError is thrown, its message starts with
@@ -11,8 +11,8 @@
 #include <string>
 #include <string_view>
 
-#include "model/errors.h"
-#include "model/model_file.h"
+#include "model/core/errors.h"
+#include "model/core/model_file.h"
 
 namespace {
 

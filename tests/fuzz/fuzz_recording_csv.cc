@@ -1,4 +1,4 @@
-// Fuzz target: a recording CSV (model/recording.h, ParseRecordingCsv), as `flexid
+// Fuzz target: a recording CSV (model/core/recording.h, ParseRecordingCsv), as `flexid
 // identify|simulate|diagnose` and `flexid trials import` read it.
 //
 // Invariants (abort otherwise): only model::InputError is thrown, its message starts with
@@ -12,8 +12,8 @@
 #include <string>
 #include <string_view>
 
-#include "model/errors.h"
-#include "model/recording.h"
+#include "model/core/errors.h"
+#include "model/core/recording.h"
 
 namespace {
 

@@ -19,7 +19,7 @@
 #include <string>
 
 #include "clients/cli/trial_import.h"
-#include "model/errors.h"
+#include "model/core/errors.h"
 
 namespace {
 
