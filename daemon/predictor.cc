@@ -6,21 +6,32 @@
 #include <flexid/prediction_t.hpp>
 
 #include "daemon/service.h"
+#include "model/core/errors.h"
 #include "model/core/model_file.h"
 
 namespace flexid::daemon {
 
-void Service::LoadModel(ActuatorState* state, const storage::ModelRecord& record) {
-  const model::ModelDocument doc =
-      model::ParseModelJson(record.model_json, "model " + std::to_string(record.version));
+Predictor PredictorOf(const std::string& model_json, int32_t version, bool in_steady_state) {
+  const std::string source = "model version " + std::to_string(version);
+  const model::ModelDocument doc = model::ParseModelJson(model_json, source);
   Predictor predictor;
-  predictor.version = record.version;
+  predictor.version = version;
+  model::SimulationOptions options;
+  options.start_in_steady_state = in_steady_state;
+  try {
+    predictor.simulator.emplace(model::AsTsModel(doc), model::EffectsOf(doc, source), options);
+  } catch (const model::InputError& e) {
+    const std::string what = e.what();
+    throw model::InputError(what.starts_with(source) ? what : source + ": " + what);
+  }
+  return predictor;
+}
+
+void Service::LoadModel(ActuatorState* state, const storage::ModelRecord& record) {
   // Start at rest, or in steady state under the voltage in force: a model swapped in
   // during a hold starts where the actuator is assumed to be.
-  model::SimulationOptions options;
-  options.start_in_steady_state = std::abs(state->voltage_V) > config.alerts.rest_band_V;
-  predictor.simulator.emplace(model::AsTsModel(doc), options);
-  state->predictor = std::move(predictor);
+  state->predictor = PredictorOf(record.model_json, record.version,
+                                 std::abs(state->voltage_V) > config.alerts.rest_band_V);
   // Alert thresholds are calibrated on the residual this model showed when it was
   // fitted (its RMSE), unless the configuration fixes the noise scale.
   MonitorOptions monitor_options = config.alerts;

@@ -6,8 +6,10 @@
 
 #include "bus/clock.h"
 #include "bus/ids.h"
+#include "daemon/predictor.h"
 #include "daemon/service.h"
 #include "flexid/version.h"
+#include "model/core/errors.h"
 #include "model/diagnose/diagnose.h"
 #include "model/identify/identify.h"
 #include "storage/queries.h"
@@ -221,6 +223,11 @@ RpcOutcome Service::RpcModelActivate(const flexid::rpc_request_t& request,
   const auto version = static_cast<int32_t>(RequiredIntegerArgument(args, "version", 1, INT32_MAX));
   const auto record = db.FindModel(state->info.id, version);
   if (!record) return {ReplyStatus::kNotFound, nullptr, "no such model version", false};
+  try {
+    PredictorOf(record->model_json, record->version, false);  // it must run live
+  } catch (const model::InputError& e) {
+    return {ReplyStatus::kBadRequest, nullptr, e.what(), false};
+  }
   // Swapped in once the writer has made it the active one.
   return ReplyWhenWritten(
       Store(storage::ModelActivation{state->info.id, version}), request,

@@ -46,6 +46,18 @@ TEST(DiagnoseConcealed, NamesEveryShippedRecordingsEffect) {
     EXPECT_LT(d.findings[0].heldout_rmse_after_mm, 0.5 * d.findings[0].heldout_rmse_before_mm)
         << file;
     EXPECT_FALSE(d.findings[0].where.empty()) << file;
+    // The augmented model file (its augmentations, an accruing effect's scale fixed at
+    // the recording's own) predicts what the diagnosis predicted.
+    std::vector<model::Effect> effects;
+    for (const model::Finding& f : d.findings)
+      effects.push_back(model::EffectFromAugmentation(model::AugmentationOf(f.model)));
+    const std::vector<double> from_file = model::SimulateAugmented(trusted, rec, effects);
+    ASSERT_EQ(from_file.size(), d.augmented_mm.size());
+    for (size_t k = 0; k < from_file.size(); ++k)
+      ASSERT_NEAR(from_file[k], d.augmented_mm[k], 1e-9) << file << " sample " << k;
+    if (model::EffectScaleName(d.findings[0].model.kind)) {
+      EXPECT_GT(d.findings[0].model.scale, 0.0) << file;
+    }
     EXPECT_NE(d.findings[0].explanation.find(effect == "electrolysis_saturation"
                                                  ? "electrolysis"
                                                  : effect.substr(0, effect.find('_'))),

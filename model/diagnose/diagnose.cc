@@ -543,6 +543,21 @@ struct Diagnoser {
     current = std::move(fit);
   }
 
+  // An accruing effect was fitted on the recordings' own scale (their charge, their
+  // duration; Effect::scale 0). Fixed now at that value, the augmented model predicts the
+  // same on these recordings and also on others and live. A degradation's charge is that
+  // of the voltage reaching it: after the input effects before it.
+  void FixScales() {
+    std::vector<double> u = rec.voltage_V;
+    for (const Effect& e : data.given)
+      if (IsInputEffect(e.kind)) ApplyInputEffect(e, rec.t_s, &u);
+    for (Finding& f : result.findings) {
+      Effect& e = f.model;
+      if (EffectScaleName(e.kind) && !(e.scale > 0)) e.scale = OwnScale(e.kind, rec.t_s, u);
+      if (IsInputEffect(e.kind)) ApplyInputEffect(e, rec.t_s, &u);
+    }
+  }
+
   Diagnosis Run() {
     const TsModel& baseline = result.baseline_model;
     ReadLevels();
@@ -575,6 +590,7 @@ struct Diagnoser {
       result.absorbed = ReadAgainstPhysics(
           current.model.refit ? *current.model.refit : result.baseline_model, data.noise_mm);
     }
+    FixScales();
     result.verdict = result.findings.empty() ? "none" : result.findings.front().effect;
     result.augmented_mm = result.findings.empty() ? result.baseline_mm : current.prediction;
     result.augmented_baseline_model = current.model.refit ? *current.model.refit : baseline;

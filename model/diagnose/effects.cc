@@ -4,6 +4,8 @@
 #include <cmath>
 #include <limits>
 #include <stdexcept>
+#include <string>
+#include <utility>
 
 #include "model/core/errors.h"
 
@@ -19,7 +21,8 @@ struct EffectInfo {
   const char* name;
   const char* description;
   std::vector<std::string> params;
-  bool input_side;  // changes the voltage the model is driven with
+  bool input_side;                   // changes the voltage the model is driven with
+  const char* scale_name = nullptr;  // Effect::scale in a model file, if it has one
 };
 
 const std::vector<EffectInfo>& Catalogue() {
@@ -48,7 +51,8 @@ const std::vector<EffectInfo>& Catalogue() {
        "Residual: amplitude shrinks from cycle to cycle in proportion to the response. "
        "Model: drive voltage u (1 - loss)^(Q(t) / Q_end), Q = integral |u| dt.",
        {"loss"},
-       true},
+       true,
+       "charge_Vs"},
       {EffectKind::kHysteresis,
        "hysteresis",
        "Friction in the clamp and in the polymer network make the beam lag by a fixed "
@@ -83,7 +87,8 @@ const std::vector<EffectInfo>& Catalogue() {
        "Model: drift_mm x + warmup_mm (1 - exp(-t / warmup_tau_s)), x = time as a fraction "
        "of the recording.",
        {"drift_mm", "warmup_mm", "warmup_tau_s"},
-       false},
+       false,
+       "span_s"},
       {EffectKind::kPolarityAsymmetry,
        "polarity_asymmetry",
        "Negative voltage moves the beam with another gain than positive (asymmetric "
@@ -105,20 +110,60 @@ const EffectInfo& Entry(EffectKind kind) {
 // Effect models
 // -----------------------------------------------------------------------------------------
 
-// tau s' = y - s with y linear between samples, solved exactly per step (first-order hold);
-// s starts at y_0 (steady state).
+// One step of tau s' = y - s with y linear between the samples y_prev and y, dt_s apart,
+// solved exactly (first-order hold).
+double FollowerStep(double s, double y_prev, double y, double dt_s, double tau_s) {
+  const double r = dt_s / tau_s;
+  const double a = std::exp(-r);
+  const double ramp = r > 1e-8 ? 1.0 - (1.0 - a) / r : 0.5 * r;
+  return a * s + (1.0 - a) * y_prev + ramp * (y - y_prev);
+}
+
+// The slow follower s over a series; s starts at y_0 (steady state).
 std::vector<double> SlowFollower(std::span<const double> t_s, std::span<const double> y,
                                  double tau_s) {
   std::vector<double> s(y.size());
   if (y.empty()) return s;
   s[0] = y[0];
-  for (size_t k = 0; k + 1 < y.size(); ++k) {
-    const double r = (t_s[k + 1] - t_s[k]) / tau_s;
-    const double a = std::exp(-r);
-    const double ramp = r > 1e-8 ? 1.0 - (1.0 - a) / r : 0.5 * r;
-    s[k + 1] = a * s[k] + (1.0 - a) * y[k] + ramp * (y[k + 1] - y[k]);
-  }
+  for (size_t k = 0; k + 1 < y.size(); ++k)
+    s[k + 1] = FollowerStep(s[k], y[k], y[k + 1], t_s[k + 1] - t_s[k], tau_s);
   return s;
+}
+
+// Dahl's friction state after the model's deflection moved by dy_mm: it moves towards the
+// direction of motion exponentially in the distance travelled, over reach_mm.
+double FrictionStep(double h, double dy_mm, double reach_mm) {
+  if (dy_mm == 0.0) return h;
+  const double target = dy_mm > 0 ? 1.0 : -1.0;
+  return target + (h - target) * std::exp(-std::abs(dy_mm) / std::max(std::abs(reach_mm), 1e-9));
+}
+
+// The sensor's drift elapsed_s after the first sample, over a span of span_s.
+double DriftAt(const Effect& e, double elapsed_s, double span_s) {
+  return e.params[0] * (elapsed_s / span_s) +
+         e.params[1] * (1.0 - std::exp(-elapsed_s / std::max(e.params[2], 1e-9)));
+}
+
+// The voltage an effect without memory drives the model with (dead zone, saturation,
+// polarity); the others pass it through.
+double MemorylessInput(const Effect& e, double v) {
+  switch (e.kind) {
+    case EffectKind::kElectrolysisSaturation: {
+      const double onset = e.params[0], slope = e.params[1], a = std::abs(v);
+      return a > onset ? std::copysign(onset + slope * (a - onset), v) : v;
+    }
+    case EffectKind::kDeadZone:
+      return std::copysign(std::max(std::abs(v) - e.params[0], 0.0), v);
+    case EffectKind::kPolarityAsymmetry:
+      return v < 0 ? v * e.params[0] : v;
+    default:
+      return v;
+  }
+}
+
+// cycle_degradation's gain at charge q_Vs: (1 - loss)^(q / scale).
+double DegradationGain(const Effect& e, double q_Vs, double scale_Vs) {
+  return std::exp(std::log(std::max(1e-9, 1.0 - e.params[0])) * q_Vs / scale_Vs);
 }
 
 }  // namespace
@@ -126,40 +171,30 @@ std::vector<double> SlowFollower(std::span<const double> t_s, std::span<const do
 void ApplyInputEffect(const Effect& e, std::span<const double> t_s,
                       std::vector<double>* voltage_V) {
   std::vector<double>& u = *voltage_V;
-  switch (e.kind) {
-    case EffectKind::kCycleDegradation: {
-      // Q(t_k) = sum_{j<k} |u_j| (t_{j+1} - t_j): the charge proxy up to the sample.
-      std::vector<double> q(u.size(), 0.0);
-      for (size_t k = 1; k < u.size(); ++k)
-        q[k] = q[k - 1] + std::abs(u[k - 1]) * (t_s[k] - t_s[k - 1]);
-      const double total = q.back() > 0 ? q.back() : 1.0;
-      const double log_keep = std::log(std::max(1e-9, 1.0 - e.params[0]));
-      for (size_t k = 0; k < u.size(); ++k) u[k] *= std::exp(log_keep * q[k] / total);
-      break;
-    }
-    case EffectKind::kElectrolysisSaturation: {
-      const double onset = e.params[0], slope = e.params[1];
-      for (double& v : u) {
-        const double a = std::abs(v);
-        if (a > onset) v = std::copysign(onset + slope * (a - onset), v);
-      }
-      break;
-    }
-    case EffectKind::kDeadZone:
-      for (double& v : u) v = std::copysign(std::max(std::abs(v) - e.params[0], 0.0), v);
-      break;
-    case EffectKind::kPolarityAsymmetry:
-      for (double& v : u)
-        if (v < 0) v *= e.params[0];
-      break;
-    default:
-      break;
+  if (e.kind != EffectKind::kCycleDegradation) {
+    for (double& v : u) v = MemorylessInput(e, v);
+    return;
   }
+  if (u.empty()) return;
+  // Q(t_k) = sum_{j<k} |u_j| (t_{j+1} - t_j): the charge proxy up to the sample.
+  std::vector<double> q(u.size(), 0.0);
+  for (size_t k = 1; k < u.size(); ++k)
+    q[k] = q[k - 1] + std::abs(u[k - 1]) * (t_s[k] - t_s[k - 1]);
+  const double scale = e.scale > 0 ? e.scale : q.back() > 0 ? q.back() : 1.0;  // = OwnScale
+  for (size_t k = 0; k < u.size(); ++k) u[k] *= DegradationGain(e, q[k], scale);
+}
+
+double OwnScale(EffectKind kind, std::span<const double> t_s, std::span<const double> voltage_V) {
+  if (t_s.empty()) return 0.0;
+  if (kind == EffectKind::kSensorDrift) return std::max(t_s.back() - t_s.front(), 1e-12);
+  if (kind != EffectKind::kCycleDegradation) return 0.0;
+  double q = 0.0;
+  for (size_t k = 1; k < t_s.size(); ++k) q += std::abs(voltage_V[k - 1]) * (t_s[k] - t_s[k - 1]);
+  return q > 0 ? q : 1.0;
 }
 
 void ApplyOutputEffect(const Effect& e, std::span<const double> t_s, std::vector<double>* y_mm) {
   std::vector<double>& y = *y_mm;
-  const std::vector<double> base = e.kind == EffectKind::kHysteresis ? y : std::vector<double>{};
   switch (e.kind) {
     case EffectKind::kBackRelaxation:
     case EffectKind::kCreep: {
@@ -169,33 +204,96 @@ void ApplyOutputEffect(const Effect& e, std::span<const double> t_s, std::vector
       break;
     }
     case EffectKind::kHysteresis: {
-      // Dahl's friction model, rate-independent: the friction state h moves towards the
-      // direction of motion exponentially in the distance travelled, over reach_mm;
-      // the beam lags by width_mm h.
-      const double width = e.params[0], reach = std::max(std::abs(e.params[1]), 1e-9);
+      // Dahl's friction model, rate-independent: the beam lags by width_mm h.
+      const std::vector<double> base = y;
       double h = 0.0;
       for (size_t k = 1; k < y.size(); ++k) {
-        const double dy = y[k] - base[k - 1];
-        if (dy != 0.0) {
-          const double target = dy > 0 ? 1.0 : -1.0;
-          h = target + (h - target) * std::exp(-std::abs(dy) / reach);
-        }
-        y[k] = base[k] - width * h;
+        h = FrictionStep(h, base[k] - base[k - 1], e.params[1]);
+        y[k] = base[k] - e.params[0] * h;
       }
       break;
     }
     case EffectKind::kSensorDrift: {
-      const double t0 = t_s.front(), span = std::max(t_s.back() - t0, 1e-12);
-      for (size_t k = 0; k < y.size(); ++k) {
-        const double x = (t_s[k] - t0) / span;
-        y[k] += e.params[0] * x +
-                e.params[1] * (1.0 - std::exp(-(t_s[k] - t0) / std::max(e.params[2], 1e-9)));
-      }
+      if (y.empty()) break;
+      const double t0 = t_s.front();
+      const double span = e.scale > 0 ? e.scale : std::max(t_s.back() - t0, 1e-12);
+      for (size_t k = 0; k < y.size(); ++k) y[k] += DriftAt(e, t_s[k] - t0, span);
       break;
     }
     default:
       break;
   }
+}
+
+// -----------------------------------------------------------------------------------------
+// Streaming
+// -----------------------------------------------------------------------------------------
+
+AugmentedStreamingSimulator::AugmentedStreamingSimulator(const TsModel& model,
+                                                         std::vector<Effect> effects,
+                                                         const SimulationOptions& options)
+    : simulator_(model, options), effects_(std::move(effects)), states_(effects_.size()) {
+  for (const Effect& e : effects_) {
+    const std::string name = EffectName(e.kind);
+    if (e.params.size() != EffectParameterNames(e.kind).size())
+      throw InputError("effect " + name + ": needs " +
+                       std::to_string(EffectParameterNames(e.kind).size()) + " parameters");
+    if (EffectScaleName(e.kind) && !(e.scale > 0))
+      throw InputError("effect " + name + ": a live prediction needs its " +
+                       EffectScaleName(e.kind) + " (> 0; flexid diagnose writes it)");
+  }
+}
+
+double AugmentedStreamingSimulator::StepInput(const Effect& e, State* state, double t_s,
+                                              double voltage_V) const {
+  if (e.kind != EffectKind::kCycleDegradation) return MemorylessInput(e, voltage_V);
+  if (state->started) state->charge_Vs += std::abs(state->last_in) * (t_s - state->last_t_s);
+  state->started = true;
+  state->last_in = voltage_V;
+  state->last_t_s = t_s;
+  return voltage_V * DegradationGain(e, state->charge_Vs, e.scale);
+}
+
+double AugmentedStreamingSimulator::StepOutput(const Effect& e, State* state, double t_s,
+                                               double y) const {
+  const bool first = !state->started;
+  if (first) {
+    state->started = true;
+    state->t0_s = t_s;
+    state->slow_mm = y;
+  }
+  double out = y;
+  switch (e.kind) {
+    case EffectKind::kBackRelaxation:
+    case EffectKind::kCreep:
+      if (!first)
+        state->slow_mm =
+            FollowerStep(state->slow_mm, state->last_in, y, t_s - state->last_t_s, e.params[1]);
+      out = y + (e.kind == EffectKind::kBackRelaxation ? -1.0 : 1.0) * e.params[0] * state->slow_mm;
+      break;
+    case EffectKind::kHysteresis:
+      if (!first) state->friction = FrictionStep(state->friction, y - state->last_in, e.params[1]);
+      out = y - e.params[0] * state->friction;
+      break;
+    case EffectKind::kSensorDrift:
+      out = y + DriftAt(e, t_s - state->t0_s, e.scale);
+      break;
+    default:
+      break;
+  }
+  state->last_in = y;
+  state->last_t_s = t_s;
+  return out;
+}
+
+double AugmentedStreamingSimulator::Step(double t_s, double voltage_V) {
+  double u = voltage_V;
+  for (size_t i = 0; i < effects_.size(); ++i)
+    if (IsInputEffect(effects_[i].kind)) u = StepInput(effects_[i], &states_[i], t_s, u);
+  double y = simulator_.Step(t_s, u);
+  for (size_t i = 0; i < effects_.size(); ++i)
+    if (!IsInputEffect(effects_[i].kind)) y = StepOutput(effects_[i], &states_[i], t_s, y);
+  return y;
 }
 
 // -----------------------------------------------------------------------------------------
@@ -223,6 +321,8 @@ const char* EffectDescription(EffectKind kind) { return Entry(kind).description;
 
 std::vector<std::string> EffectParameterNames(EffectKind kind) { return Entry(kind).params; }
 
+const char* EffectScaleName(EffectKind kind) { return Entry(kind).scale_name; }
+
 Effect EffectFromAugmentation(const Augmentation& augmentation) {
   Effect effect;
   if (!ParseEffectName(augmentation.effect, &effect.kind))
@@ -233,6 +333,15 @@ Effect EffectFromAugmentation(const Augmentation& augmentation) {
       throw InputError("augmentation \"" + augmentation.effect + "\": parameter " + name +
                        " must be a finite number");
     effect.params.push_back(it->get<double>());
+  }
+  if (const char* scale = EffectScaleName(effect.kind)) {
+    const auto it = augmentation.params.find(scale);
+    if (it != augmentation.params.end()) {
+      if (!it->is_number() || !(it->get<double>() > 0) || !std::isfinite(it->get<double>()))
+        throw InputError("augmentation \"" + augmentation.effect + "\": " + scale +
+                         " must be a finite number > 0");
+      effect.scale = it->get<double>();
+    }
   }
   return effect;
 }
@@ -254,6 +363,8 @@ Augmentation AugmentationOf(const Effect& effect) {
   a.effect = EffectName(effect.kind);
   for (size_t i = 0; i < effect.params.size(); ++i)
     a.params[Entry(effect.kind).params[i]] = effect.params[i];
+  if (const char* scale = EffectScaleName(effect.kind); scale && effect.scale > 0)
+    a.params[scale] = effect.scale;
   return a;
 }
 
