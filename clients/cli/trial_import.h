@@ -1,8 +1,9 @@
 // The bus-free half of `flexid trials export|import`: the trial CSV with its comment lines,
 // turning a recording CSV or an lcm-logger log into the voltage and deflection messages one
 // actuator would have sent (an ImportPlan), pairing those messages into stored samples the
-// way flexidd does, and storing a plan's trials in a database file. trials_command.cc adds
-// the command line, the bus replay and the daemon queries.
+// way flexidd does, and storing a plan's trials in a database file. The command lines are
+// trials_export_command.cc and trials_import_command.cc; the bus replay and its daemon
+// queries are trials_replay.h.
 //
 // Export format (DESIGN.md, "Recording CSV", plus comments that import reads back):
 //   # flexid trial export
