@@ -164,6 +164,9 @@ ActuatorState* Service::ActuatorArgument(const nlohmann::json& args, bool requir
 
 RpcOutcome Service::RpcStatus(const flexid::rpc_request_t&, const nlohmann::json&) {
   const Counters c = Snapshot();
+  // A source that starts again (flexid-rig) continues its message time after this one,
+  // so that flexidd does not see its clock jump back; null before any sample.
+  const int64_t latest_utime = LatestMessageUtime();
   return {ReplyStatus::kOk,
           {{"daemon_id", config.daemon_id},
            {"version", kVersion},
@@ -181,7 +184,9 @@ RpcOutcome Service::RpcStatus(const flexid::rpc_request_t&, const nlohmann::json
            {"alerts_dropped", c.alerts_dropped},
            {"writes_queued", writer->writes_queued()},
            {"requests_refused_unauthorized", c.refused_unauthorized},
-           {"identification_running", worker->busy()}},
+           {"identification_running", worker->busy()},
+           {"latest_utime",
+            latest_utime == kNoTime ? nlohmann::json(nullptr) : nlohmann::json(latest_utime)}},
           "",
           false};
 }

@@ -227,6 +227,7 @@ struct Service {
   void ReportDiagnosis(const DiagnosisResult& result);
 
   // health.cc
+  int64_t LatestMessageUtime() const;
   int64_t LatestUtime() const;
   void RaiseHealth(const std::string& actuator_id, const std::string& kind, int severity,
                    int64_t start_utime, int64_t utime, const std::string& text);
