@@ -83,7 +83,7 @@ Config ParseConfigText(std::string_view text, const std::string& path) {
             {"daemon_id", "database", "lcm_url", "channel_prefix", "log_file", "log_level",
              "commit_interval_ms", "auto_trials", "trial_idle_stop_s", "accept_unknown_actuators",
              "max_message_bytes", "pin_threads", "auth_key_file", "auth_window_s", "actuators",
-             "identification", "alerts", "health"},
+             "identification", "policy", "alerts", "health"},
             path);
   Read(root, "daemon_id", path, &c.daemon_id);
   Read(root, "database", path, &c.database);
@@ -111,6 +111,13 @@ Config ParseConfigText(std::string_view text, const std::string& path) {
     Read(*id, "max_delay_s", where, &c.identification.max_delay_s);
     Read(*id, "latest_trials", where, &c.identification.latest_trials);
     Read(*id, "max_diagnosis_samples", where, &c.identification.max_diagnosis_samples);
+  }
+  if (const toml::table* policy = root["policy"].as_table()) {
+    const std::string where = path + ": policy";
+    CheckKeys(*policy, {"on_alert", "adopt_min_gain", "min_interval_s"}, where);
+    Read(*policy, "on_alert", where, &c.policy.on_alert);
+    Read(*policy, "adopt_min_gain", where, &c.policy.adopt_min_gain);
+    Read(*policy, "min_interval_s", where, &c.policy.min_interval_s);
   }
   if (const toml::table* alerts = root["alerts"].as_table()) {
     const std::string where = path + ": alerts";
@@ -196,6 +203,15 @@ void Validate(const Config& c) {
   if (id.latest_trials < 1) Fail("identification.latest_trials", "must be >= 1");
   if (id.max_diagnosis_samples < 200)
     Fail("identification.max_diagnosis_samples", "must be >= 200 (a diagnosis needs 200 samples)");
+  const PolicyConfig& p = c.policy;
+  if (p.on_alert != "none" && p.on_alert != "diagnose" && p.on_alert != "propose" &&
+      p.on_alert != "adopt")
+    Fail("policy.on_alert",
+         "expected none, diagnose, propose or adopt, got \"" + p.on_alert + "\"");
+  if (!(p.adopt_min_gain >= 1.0) || !std::isfinite(p.adopt_min_gain))
+    Fail("policy.adopt_min_gain", "must be finite and >= 1 (held-out RMSE before / after)");
+  if (!(p.min_interval_s >= 0.0) || !std::isfinite(p.min_interval_s))
+    Fail("policy.min_interval_s", "must be finite and >= 0");
   std::string why;
   if (!c.alerts.IsValid(&why)) Fail("alerts", why);
   const HealthConfig& h = c.health;
@@ -256,6 +272,9 @@ std::vector<std::string> Describe(const Config& c) {
           ", max_delay_s " + std::to_string(c.identification.max_delay_s) + ", latest_trials " +
           std::to_string(c.identification.latest_trials) + ", max_diagnosis_samples " +
           std::to_string(c.identification.max_diagnosis_samples),
+      "policy: on_alert " + c.policy.on_alert + ", adopt_min_gain " +
+          std::to_string(c.policy.adopt_min_gain) + ", min_interval_s " +
+          std::to_string(c.policy.min_interval_s),
       "alerts: false_alarms_per_hour " + std::to_string(c.alerts.false_alarms_per_hour) +
           ", min_hold_s " + std::to_string(c.alerts.min_hold_s) + ", settle_s " +
           std::to_string(c.alerts.settle_s) + ", dropout_s " + std::to_string(c.alerts.dropout_s) +

@@ -35,6 +35,18 @@ struct IdentificationConfig {
   int64_t max_diagnosis_samples = 200000;
 };
 
+// What flexidd does when a trial that raised a residual or back-relaxation alert ends
+// (README "Proposals"): "none"; "diagnose" it on the worker against the active model;
+// "propose" the augmented model as a new inactive version; or "adopt" it (activate it)
+// when its held-out gain (RMSE before / after) reaches adopt_min_gain, else propose it.
+// At most one such diagnosis per actuator per min_interval_s (wall clock). Every step is
+// an alert (kind "policy", or the diagnosis's own) and a log line.
+struct PolicyConfig {
+  std::string on_alert = "diagnose";
+  double adopt_min_gain = 3.0;
+  double min_interval_s = 600.0;
+};
+
 // How the daemon notices faults other than bad messages (daemon/health.h, README
 // "Reliability so far"). Times of silence are wall-clock (steady) seconds: message time
 // stops when the source does. Clock jumps are in message time.
@@ -75,6 +87,7 @@ struct Config {
   double auth_window_s = 30.0;
   std::vector<storage::Actuator> actuators;
   IdentificationConfig identification;
+  PolicyConfig policy;
   MonitorOptions alerts;
   HealthConfig health;
 };

@@ -54,7 +54,7 @@ void Service::LoadModel(ActuatorState* state, const storage::ModelRecord& record
 // holds it makes.
 void Service::PredictVoltage(ActuatorState* state, int64_t utime, double voltage_V) {
   if (state->predictor.ready()) state->predictor.Step(utime, voltage_V);
-  Raise(state, state->monitor->OnVoltage(utime, voltage_V));
+  RaiseMonitorAlerts(state, state->monitor->OnVoltage(utime, voltage_V));
 }
 
 // The prediction at a deflection sample's time, published with the residual; the monitor
@@ -75,7 +75,16 @@ void Service::PublishPrediction(ActuatorState* state, const flexid::deflection_s
   out.num_memberships = static_cast<int16_t>(out.memberships.size());
   lcm.publish(channels.Prediction(message.actuator_id), &out);
   ++counters.predictions_published;
-  Raise(state, state->monitor->OnDeflection(message.utime, state->voltage_V, residual));
+  RaiseMonitorAlerts(state,
+                     state->monitor->OnDeflection(message.utime, state->voltage_V, residual));
+}
+
+void Service::RaiseMonitorAlerts(ActuatorState* state, const std::vector<Alert>& alerts) {
+  if (state->trial_id != 0)
+    for (const Alert& a : alerts)
+      state->policy_alerts +=
+          a.severity >= 1 && (a.kind == "residual" || a.kind == "back_relaxation");
+  Raise(state, alerts);
 }
 
 // Queues an alert for the writer; counts it when the writer's alert queue is full.

@@ -54,6 +54,7 @@ uint64_t Service::StartTrial(ActuatorState* state, const std::string& protocol, 
   state->last_heard = loop_now;  // input silence counts from the start of a trial
   state->automatic_trial = automatic;
   state->last_sample_utime = kNoTime;
+  state->policy_alerts = 0;
   spdlog::info("trial started [actuator: {}, trial: {}, protocol: {}]", state->info.id,
                state->trial_id, protocol);
   return ticket;
@@ -69,8 +70,14 @@ uint64_t Service::StopTrial(ActuatorState* state, int64_t utime, storage::TrialS
   const uint64_t ticket = Store(storage::TrialEnd{state->trial_id, end, how});
   spdlog::info("trial ended [actuator: {}, trial: {}, state: {}]", state->info.id, state->trial_id,
                storage::TrialStateName(how));
+  const int64_t ended = state->trial_id;
+  const int alerted = state->policy_alerts;
   state->trial_id = 0;
   state->automatic_trial = false;
+  state->policy_alerts = 0;
+  // A finished trial the model did not explain: the on_alert policy acts on it.
+  if (alerted > 0 && how == storage::TrialState::kComplete)
+    ApplyPolicy(state, ended, state->trial_start_utime, end);
   return ticket;
 }
 

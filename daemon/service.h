@@ -65,6 +65,10 @@ struct ActuatorState {
   bool silent = false;  // "input_silent" raised, no message since
   Predictor predictor;
   std::unique_ptr<ResidualMonitor> monitor;
+  // The on_alert policy (config.h PolicyConfig): residual and back-relaxation alerts the
+  // monitor raised during the trial recording now, and when the policy last diagnosed.
+  int policy_alerts = 0;
+  std::optional<std::chrono::steady_clock::time_point> last_policy_diagnosis;
 };
 
 struct Service {
@@ -225,6 +229,13 @@ struct Service {
   // worker.cc
   void OnWorkerResult(JobResult& result);
   void ReportDiagnosis(const DiagnosisResult& result);
+  // Monitor alerts: raised, and counted for the policy when they are about a trial.
+  void RaiseMonitorAlerts(ActuatorState* state, const std::vector<Alert>& alerts);
+  // A trial that raised monitor alerts has ended: diagnose it as config.policy says.
+  void ApplyPolicy(ActuatorState* state, int64_t trial_id, int64_t start_utime, int64_t end_utime);
+  // One step of the policy: an info alert of kind "policy" (and its log line).
+  void SayPolicy(ActuatorState* state, int64_t start_utime, int64_t end_utime,
+                 const std::string& text);
   // Runs a diagnosis on the worker (false: it is busy); its result comes back to
   // OnWorkerResult, which answers `context` (empty request id: nobody to answer).
   bool SubmitDiagnosis(const DiagnosisJob& job, const RpcContext& context);

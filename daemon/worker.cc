@@ -55,6 +55,7 @@ DiagnosisResult RunDiagnosis(const DiagnosisJob& job, RpcContext request) {
   result.actuator_id = job.actuator_id;
   result.trial_ids = job.trial_ids;
   result.propose = !job.propose_by.empty();
+  result.adopt_min_gain = job.adopt_min_gain;
   try {
     storage::Database db = storage::Database::Open(job.database);
     int64_t count = 0;
@@ -242,6 +243,12 @@ void Service::OnWorkerResult(JobResult& result) {
   auto* identified = std::get_if<IdentificationResult>(&result);
   if (!identified || !identified->model) {
     const JobOrigin& failed = OriginOf(result);
+    const auto* diagnosis = std::get_if<DiagnosisResult>(&result);
+    if (auto it = actuators.find(failed.actuator_id);
+        diagnosis && failed.request.request_id.empty() && it != actuators.end())
+      SayPolicy(
+          &it->second, 0, 0,
+          "the diagnosis of " + TrialWords(diagnosis->trial_ids) + " failed: " + failed.error);
     spdlog::error("{} failed [actuator: {}, error: {}]",
                   identified ? "identification" : "diagnosis", failed.actuator_id, failed.error);
     Reply(failed.request, {flexid::rpc_reply_t::kFailed, nullptr, failed.error});
@@ -313,6 +320,18 @@ void Service::ReportDiagnosis(const DiagnosisResult& result) {
     alert.text = TrialWords(result.trial_ids) + ": " + f.value("explanation", "");
     Raise(&it->second, {alert});
   }
+  // A diagnosis the policy asked for: nobody to answer; what came of it is an alert.
+  const bool by_policy = result.request.request_id.empty();
+  if (by_policy && it != actuators.end()) {
+    const int64_t start = result.trial_start_utimes.front();
+    if (verdict == "none")
+      SayPolicy(&it->second, start, start,
+                TrialWords(result.trial_ids) + " diagnosed: no effect named");
+    else if (!result.proposal_error.empty())
+      SayPolicy(&it->second, start, start,
+                TrialWords(result.trial_ids) +
+                    " diagnosed; its augmented model is not proposed: " + result.proposal_error);
+  }
   if (!result.propose) {
     Reply(result.request, {flexid::rpc_reply_t::kOk, d, "", false});
   } else if (!result.proposal_error.empty()) {
@@ -345,6 +364,11 @@ void Service::StoreProposal(const DiagnosisResult& result) {
     alert.start_utime = result.trial_start_utimes.front();
     alert.end_utime = result.trial_start_utimes.back();
     alert.text = result.actuator_id + ": " + ProposalWords(proposal);
+    if (result.adopt)
+      alert.text += "; adopted (policy.on_alert adopt)";
+    else if (result.adopt_min_gain > 0)
+      alert.text += "; not adopted: the gain is below policy.adopt_min_gain " +
+                    std::to_string(result.adopt_min_gain).substr(0, 4);
     if (auto it = actuators.find(result.actuator_id); it != actuators.end())
       Raise(&it->second, {alert});
     nlohmann::json out = result.diagnosis;

@@ -52,7 +52,8 @@ struct DiagnosisResult : JobOrigin {
   // version (proposal.h), to be stored by the writer; nothing when no effect was named.
   // proposal_error: why it could not be built (the diagnosis stands).
   bool propose = false;
-  bool adopt = false;  // activate the proposal once stored (on_alert = adopt, gain passed)
+  bool adopt = false;           // activate the proposal once stored (on_alert = adopt, gain passed)
+  double adopt_min_gain = 0.0;  // the job's (0: adopting was not asked)
   std::optional<storage::ModelRecord> proposal = std::nullopt;
   std::string proposal_error = {};
 };

@@ -12,6 +12,7 @@
 #include <flexid/rpc_request_t.hpp>
 #include <map>
 #include <nlohmann/json.hpp>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -134,6 +135,97 @@ TEST_F(DaemonAugmented, ActivatingAModelThatCannotRunLiveIsRefusedAndChangesNoth
   const auto active = storage::Database::Open(config_.database).ActiveModel("S1");
   ASSERT_TRUE(active.has_value());
   EXPECT_EQ(active->version, 1);
+}
+
+// The on_alert policy (issue 15, item 3): a trial whose residual the model does not
+// explain (the plant relaxes back, the model does not) is diagnosed when it ends, and with
+// on_alert = adopt its augmented model becomes the active version; each step is an alert.
+class DaemonPolicy : public DaemonAugmented {
+ protected:
+  // Two 2 V square cycles (110 s on, 110 s off) of the seed's model with back-relaxation,
+  // at 10 Hz with 0.02 mm noise; then rest until the automatic trial ends.
+  void PlayRelaxingTrial() {
+    model::AugmentedStreamingSimulator plant(model::SeedTsModel(),
+                                             {{model::EffectKind::kBackRelaxation, {0.3, 60.0}}});
+    std::mt19937 rng(3);
+    std::normal_distribution<double> noise_mm(0.0, 0.02);
+    const int64_t samples = 4400 + 400;  // 440 s, then 40 s at rest
+    for (int64_t k = 0; k < samples; ++k) {
+      const int64_t utime = kStartUtime + k * kPeriodUs;
+      const double volts = k < 4400 && (k / 1100) % 2 == 0 ? 2.0 : 0.0;
+      const double mm =
+          plant.Step(1e-6 * static_cast<double>(k * kPeriodUs), volts) + noise_mm(rng);
+      bus_->Publish("FLEXID/S1/VOLTAGE", testing::Voltage(utime, volts));
+      bus_->Publish("FLEXID/S1/DEFLECTION", testing::Deflection(utime, mm));
+      ASSERT_TRUE(
+          Drive([&] { return bus_->predictions.size() == static_cast<size_t>(k + 1); }, 3s));
+    }
+  }
+  std::vector<flexid::alert_t> AlertsOf(const std::string& kind) const {
+    return bus_->AlertsOf(kind);
+  }
+};
+
+TEST_F(DaemonPolicy, AdoptActivatesTheAugmentedModelOfATrialThatRaisedAlerts) {
+  StoreModel(model::FromTsModel(model::SeedTsModel()), true);  // version 1
+  config_.policy.on_alert = "adopt";
+  config_.policy.adopt_min_gain = 3.0;
+  config_.trial_idle_stop_s = 20.0;
+  StartDaemon();
+  PlayRelaxingTrial();
+  ASSERT_TRUE(Drive(
+      [&] {
+        for (const flexid::alert_t& a : AlertsOf("model_changed"))
+          if (a.text.find("model version 2 is active") != std::string::npos) return true;
+        return false;
+      },
+      60s))
+      << "the augmented model was not adopted";
+  ASSERT_FALSE(AlertsOf("policy").empty());
+  EXPECT_NE(AlertsOf("policy").front().text.find("diagnosing it (policy.on_alert adopt)"),
+            std::string::npos)
+      << AlertsOf("policy").front().text;
+  ASSERT_EQ(AlertsOf("model_proposed").size(), 1u);
+  EXPECT_NE(AlertsOf("model_proposed").front().text.find("adopted"), std::string::npos);
+  ASSERT_TRUE(Drive(
+      [&] {
+        const auto active = storage::Database::Open(config_.database).ActiveModel("S1");
+        return active && active->version == 2;
+      },
+      10s));
+  const auto active = storage::Database::Open(config_.database).ActiveModel("S1");
+  const nlohmann::json lineage = nlohmann::json::parse(active->lineage_json);
+  EXPECT_EQ(lineage.value("proposed_by", ""), "policy");
+  EXPECT_EQ(lineage.value("parent_version", 0), 1);
+  EXPECT_GE(lineage.value("heldout_gain", 0.0), 3.0);
+}
+
+TEST_F(DaemonPolicy, NoneLeavesATrialThatRaisedAlertsAlone) {
+  StoreModel(model::FromTsModel(model::SeedTsModel()), true);
+  config_.policy.on_alert = "none";
+  config_.trial_idle_stop_s = 20.0;
+  StartDaemon();
+  PlayRelaxingTrial();
+  Drive([] { return false; }, 2s);
+  EXPECT_FALSE(bus_->AlertsOf("residual").empty() && bus_->AlertsOf("back_relaxation").empty());
+  EXPECT_TRUE(AlertsOf("policy").empty());
+  EXPECT_TRUE(AlertsOf("model_proposed").empty());
+  EXPECT_EQ(storage::Database::Open(config_.database).Models("S1").size(), 1u);
+}
+
+TEST(DaemonPolicyConfig, AnOnAlertValueNotOfTheFourIsRefusedInOneLine) {
+  daemon::Config config;
+  config.policy.on_alert = "always";
+  try {
+    daemon::Validate(config);
+    FAIL() << "on_alert = always was accepted";
+  } catch (const daemon::ConfigError& e) {
+    EXPECT_EQ(std::string(e.what()).find('\n'), std::string::npos);
+    EXPECT_NE(std::string(e.what()).find("policy.on_alert"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("\"always\""), std::string::npos) << e.what();
+  }
+  config.policy.on_alert = "propose";
+  EXPECT_NO_THROW(daemon::Validate(config));
 }
 
 }  // namespace

@@ -1,8 +1,11 @@
 #include "clients/cli/source.h"
 
+#include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <filesystem>
 #include <flexid/rpc_reply_t.hpp>
+#include <thread>
 
 #include "clients/cli/bus.h"
 #include "clients/cli/command.h"
@@ -70,13 +73,18 @@ nlohmann::json QueryFile(const std::string& method, const nlohmann::json& args) 
   throw UsageError("\"" + method + "\" needs a running flexidd; it has no offline form (--db)");
 }
 
-nlohmann::json QueryDaemon(const std::string& method, const nlohmann::json& args,
-                           double timeout_s) {
-  const RpcResult r = CallDaemon(method, args, Milliseconds(timeout_s));
+// The reply's result, or the error it carries as a usage error (bad request, not found) or
+// an operation error.
+nlohmann::json ResultOf(const RpcResult& r) {
   if (r.status == flexid::rpc_reply_t::kOk) return r.result;
   if (r.status == flexid::rpc_reply_t::kBadRequest || r.status == flexid::rpc_reply_t::kNotFound)
     throw UsageError(r.daemon_id + ": " + r.error);
   throw OperationError(r.daemon_id + ": " + r.error);
+}
+
+nlohmann::json QueryDaemon(const std::string& method, const nlohmann::json& args,
+                           double timeout_s) {
+  return ResultOf(CallDaemon(method, args, Milliseconds(timeout_s)));
 }
 
 }  // namespace
@@ -104,7 +112,19 @@ nlohmann::json Query(const std::string& method, const nlohmann::json& args, doub
 nlohmann::json CallOnline(const std::string& method, const nlohmann::json& args, double timeout_s) {
   if (Offline())
     throw UsageError("\"" + method + "\" asks flexidd to act; it cannot run on a --db file");
-  return QueryDaemon(method, args, timeout_s);
+  // flexidd runs one identification or diagnosis at a time, its own too (policy.on_alert
+  // diagnoses a trial that raised alerts when it ends): a busy worker is waited for, within
+  // the timeout, each try a new signed request.
+  const auto end = std::chrono::steady_clock::now() + Milliseconds(timeout_s);
+  constexpr auto kRetry = std::chrono::milliseconds(500);
+  while (true) {
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
+        end - std::chrono::steady_clock::now());
+    const RpcResult r = CallDaemon(method, args, std::max(left, std::chrono::milliseconds(1)));
+    if (r.status != flexid::rpc_reply_t::kBusy || std::chrono::steady_clock::now() + kRetry >= end)
+      return ResultOf(r);
+    std::this_thread::sleep_for(kRetry);
+  }
 }
 
 StoredTrial LoadTrial(int64_t trial_id,
