@@ -118,23 +118,31 @@ TEST_F(DaemonAugmented, ActivatingAModelThatCannotRunLiveIsRefusedAndChangesNoth
   doc.augmentations.push_back(
       model::AugmentationOf({model::EffectKind::kCycleDegradation, {0.3}}));  // no charge_Vs
   StoreModel(doc, false);                                                     // version 2
+  model::ModelDocument wrong = model::FromTsModel(model::SeedTsModel());
+  wrong.augmentations.push_back({"back_relaxation", {{"fraction", 1.5}, {"tau_s", 30.0}}});
+  StoreModel(wrong, false);  // version 3: a fraction out of [0, 1)
   StartDaemon();
-  flexid::rpc_request_t r;
-  r.utime = bus::WallClockUtime();
-  r.request_id = "activate";
-  r.client_id = "augmented_test";
-  r.method = "model_activate";
-  r.args_json = nlohmann::json{{"actuator", "S1"}, {"version", 2}}.dump();
-  auth::Sign(key_, &r);
-  ASSERT_EQ(bus_->Publish("FLEXID/RPC/REQUEST", r), 0);
-  ASSERT_TRUE(Drive([&] { return !bus_->RepliesTo("activate").empty(); }, 5s));
-  const flexid::rpc_reply_t reply = bus_->RepliesTo("activate").front().second;
-  EXPECT_EQ(reply.status, flexid::rpc_reply_t::kBadRequest);
-  EXPECT_NE(reply.error.find("model version 2"), std::string::npos) << reply.error;
-  EXPECT_NE(reply.error.find("charge_Vs"), std::string::npos) << reply.error;
-  const auto active = storage::Database::Open(config_.database).ActiveModel("S1");
-  ASSERT_TRUE(active.has_value());
-  EXPECT_EQ(active->version, 1);
+  for (const auto& [version, problem] :
+       {std::pair{2, "charge_Vs"}, std::pair{3, "fraction must be [0, 1), not 1.5"}}) {
+    flexid::rpc_request_t r;
+    r.utime = bus::WallClockUtime();
+    r.request_id = "activate" + std::to_string(version);
+    r.client_id = "augmented_test";
+    r.method = "model_activate";
+    r.args_json = nlohmann::json{{"actuator", "S1"}, {"version", version}}.dump();
+    auth::Sign(key_, &r);
+    ASSERT_EQ(bus_->Publish("FLEXID/RPC/REQUEST", r), 0);
+    ASSERT_TRUE(Drive([&] { return !bus_->RepliesTo(r.request_id).empty(); }, 5s));
+    const flexid::rpc_reply_t reply = bus_->RepliesTo(r.request_id).front().second;
+    EXPECT_EQ(reply.status, flexid::rpc_reply_t::kBadRequest);
+    EXPECT_NE(reply.error.find("model version " + std::to_string(version)), std::string::npos)
+        << reply.error;
+    EXPECT_NE(reply.error.find(problem), std::string::npos) << reply.error;
+    EXPECT_EQ(reply.error.find('\n'), std::string::npos);
+    const auto active = storage::Database::Open(config_.database).ActiveModel("S1");
+    ASSERT_TRUE(active.has_value());
+    EXPECT_EQ(active->version, 1);
+  }
 }
 
 // The on_alert policy (issue 15, item 3): a trial whose residual the model does not

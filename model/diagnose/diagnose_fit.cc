@@ -225,6 +225,22 @@ class EffectCost {
   const std::vector<double>* baseline_;
 };
 
+// Every combination of the parameters' starting values, each clamped to its bounds.
+std::vector<std::vector<double>> StartCombinations(const std::vector<ParameterSpec>& specs) {
+  std::vector<std::vector<double>> starts = {{}};
+  for (const ParameterSpec& spec : specs) {
+    std::vector<std::vector<double>> next;
+    for (const auto& partial : starts)
+      for (double v : spec.starts) {
+        auto extended = partial;
+        extended.push_back(std::clamp(v, spec.lower, spec.upper));
+        next.push_back(std::move(extended));
+      }
+    starts = std::move(next);
+  }
+  return starts;
+}
+
 }  // namespace
 
 FitResult FitParameters(const Data& data, const FitProblem& problem,
@@ -238,9 +254,8 @@ FitResult FitParameters(const Data& data, const FitProblem& problem,
     best.train_sse = SumSquares(NuisanceFreeResidual(data, best.prediction), data.train);
     return best;
   }
-  // Levenberg-Marquardt from theta (in place) for at most `iterations`; returns the SSE and,
-  // if asked, the 95 % half-widths from the Jacobian at the end point, with the residual
-  // variance inflated by n / n_eff for correlated residuals.
+  // solve: Levenberg-Marquardt from theta (in place) for at most `iterations`; returns the
+  // SSE and, if asked, the 95 % half-widths.
   const EffectCost cost_function(data, problem, baseline);
   const size_t m = data.train.size();
   // 95 % half-widths from the Jacobian j (m x q) at the end point, with the residual
@@ -327,17 +342,7 @@ FitResult FitParameters(const Data& data, const FitProblem& problem,
     return 2.0 * summary.final_cost;
   };
   // Every combination of the starting values, a few iterations each; the best goes on.
-  std::vector<std::vector<double>> starts = {{}};
-  for (const ParameterSpec& spec : specs) {
-    std::vector<std::vector<double>> next;
-    for (const auto& partial : starts)
-      for (double v : spec.starts) {
-        auto extended = partial;
-        extended.push_back(std::clamp(v, spec.lower, spec.upper));
-        next.push_back(std::move(extended));
-      }
-    starts = std::move(next);
-  }
+  const std::vector<std::vector<double>> starts = StartCombinations(specs);
   std::vector<double> theta = starts.front();
   if (starts.size() > 1) {
     double best_sse = kInf;
