@@ -116,7 +116,7 @@ Config ParseConfigText(std::string_view text, const std::string& path) {
     const std::string where = path + ": alerts";
     CheckKeys(*alerts,
               {"false_alarms_per_hour", "noise_mm", "min_hold_s", "settle_s", "min_effect_mm",
-               "dropout_s", "rest_band_V"},
+               "dropout_s", "rest_band_V", "sigma_floor_mm"},
               where);
     Read(*alerts, "false_alarms_per_hour", where, &c.alerts.false_alarms_per_hour);
     Read(*alerts, "noise_mm", where, &c.alerts.noise_mm);
@@ -125,6 +125,7 @@ Config ParseConfigText(std::string_view text, const std::string& path) {
     Read(*alerts, "min_effect_mm", where, &c.alerts.min_effect_mm);
     Read(*alerts, "dropout_s", where, &c.alerts.dropout_s);
     Read(*alerts, "rest_band_V", where, &c.alerts.rest_band_V);
+    Read(*alerts, "sigma_floor_mm", where, &c.alerts.sigma_floor_mm);
   }
   if (const toml::table* health = root["health"].as_table()) {
     const std::string where = path + ": health";
@@ -257,7 +258,8 @@ std::vector<std::string> Describe(const Config& c) {
           std::to_string(c.identification.max_diagnosis_samples),
       "alerts: false_alarms_per_hour " + std::to_string(c.alerts.false_alarms_per_hour) +
           ", min_hold_s " + std::to_string(c.alerts.min_hold_s) + ", settle_s " +
-          std::to_string(c.alerts.settle_s) + ", dropout_s " + std::to_string(c.alerts.dropout_s)};
+          std::to_string(c.alerts.settle_s) + ", dropout_s " + std::to_string(c.alerts.dropout_s) +
+          ", sigma_floor_mm " + std::to_string(c.alerts.sigma_floor_mm)};
   for (const storage::Actuator& a : c.actuators) {
     std::ostringstream line;
     line << "actuator " << a.id << ": " << a.length_mm << " x " << a.width_mm << " x "

@@ -67,12 +67,19 @@ ClockJumpDetector::Verdict ClockJumpDetector::Check(int64_t last_utime, int64_t 
 // (actuator_id empty when it concerns the daemon itself).
 // ---------------------------------------------------------------------------------------
 
-// The latest message time the daemon has seen (health alerts are stamped with it), or
-// the wall clock before any message.
-int64_t Service::LatestUtime() const {
+// The latest sample time the daemon has seen from any actuator since it started, or
+// kNoTime before any sample.
+int64_t Service::LatestMessageUtime() const {
   int64_t latest = kNoTime;
   for (const auto& [id, state] : actuators)
     latest = std::max({latest, state.voltage_utime, state.deflection_utime});
+  return latest;
+}
+
+// The latest message time the daemon has seen (health alerts are stamped with it), or
+// the wall clock before any message.
+int64_t Service::LatestUtime() const {
+  const int64_t latest = LatestMessageUtime();
   return latest != kNoTime ? latest : bus::WallClockUtime();
 }
 

@@ -39,6 +39,13 @@ void Service::LoadModel(ActuatorState* state, const storage::ModelRecord& record
   if (monitor_options.noise_mm <= 0.0 && fit.is_object() && fit.contains("rmse_mm") &&
       fit["rmse_mm"].is_number())
     monitor_options.noise_mm = fit["rmse_mm"].get<double>();
+  // A model fitted to noise-free data claims a residual far below what a sensor resolves:
+  // the monitor uses its floor instead (model/diagnose/monitor.h, "Floor"), and the log says so.
+  if (monitor_options.noise_mm > 0.0 && monitor_options.noise_mm < monitor_options.sigma_floor_mm)
+    spdlog::info(
+        "model residual noise below the floor: alert thresholds use the floor [actuator: {}, "
+        "version: {}, noise_mm: {:.3g}, sigma_floor_mm: {}]",
+        state->info.id, record.version, monitor_options.noise_mm, monitor_options.sigma_floor_mm);
   state->monitor = std::make_unique<ResidualMonitor>(state->info.id, monitor_options);
   spdlog::info("model active [actuator: {}, version: {}]", state->info.id, record.version);
 }

@@ -44,6 +44,14 @@ int64_t RequiredIntegerArgument(const nlohmann::json& args, const char* name, in
   return IntegerArgument(args, name, min, min, max);
 }
 
+bool BoolArgument(const nlohmann::json& args, const char* name, bool fallback) {
+  const auto it = args.find(name);
+  if (it == args.end()) return fallback;
+  if (!it->is_boolean())
+    throw ArgumentError(std::string("argument \"") + name + "\" must be true or false");
+  return it->get<bool>();
+}
+
 std::vector<int64_t> TrialIdsArgument(const nlohmann::json& args, const char* name,
                                       size_t max_count) {
   const std::string what = std::string("argument \"") + name + "\" must be a list of 1-" +

@@ -47,6 +47,7 @@ int64_t IntegerArgument(const nlohmann::json& args, const char* name, int64_t fa
                         int64_t max);
 int64_t RequiredIntegerArgument(const nlohmann::json& args, const char* name, int64_t min,
                                 int64_t max);
+bool BoolArgument(const nlohmann::json& args, const char* name, bool fallback);
 // A list of 1 to max_count distinct trial ids (integers >= 1).
 std::vector<int64_t> TrialIdsArgument(const nlohmann::json& args, const char* name,
                                       size_t max_count);

@@ -7,6 +7,7 @@
 #include "bus/clock.h"
 #include "bus/ids.h"
 #include "daemon/predictor.h"
+#include "daemon/proposal.h"
 #include "daemon/service.h"
 #include "flexid/version.h"
 #include "model/core/errors.h"
@@ -166,6 +167,9 @@ ActuatorState* Service::ActuatorArgument(const nlohmann::json& args, bool requir
 
 RpcOutcome Service::RpcStatus(const flexid::rpc_request_t&, const nlohmann::json&) {
   const Counters c = Snapshot();
+  // A source that starts again (flexid-rig) continues its message time after this one,
+  // so that flexidd does not see its clock jump back; null before any sample.
+  const int64_t latest_utime = LatestMessageUtime();
   return {ReplyStatus::kOk,
           {{"daemon_id", config.daemon_id},
            {"version", kVersion},
@@ -183,7 +187,9 @@ RpcOutcome Service::RpcStatus(const flexid::rpc_request_t&, const nlohmann::json
            {"alerts_dropped", c.alerts_dropped},
            {"writes_queued", writer->writes_queued()},
            {"requests_refused_unauthorized", c.refused_unauthorized},
-           {"identification_running", worker->busy()}},
+           {"identification_running", worker->busy()},
+           {"latest_utime",
+            latest_utime == kNoTime ? nlohmann::json(nullptr) : nlohmann::json(latest_utime)}},
           "",
           false};
 }
@@ -228,12 +234,28 @@ RpcOutcome Service::RpcModelActivate(const flexid::rpc_request_t& request,
   } catch (const model::InputError& e) {
     return {ReplyStatus::kBadRequest, nullptr, e.what(), false};
   }
+  // A proposal is its parent with effects: once another version is active, it is stale
+  // (its effects were fitted against a model no longer in use).
+  const nlohmann::json lineage = LineageOf(*record);
+  const int64_t parent = lineage.is_object() ? lineage.value("parent_version", int64_t{0}) : 0;
+  if (parent > 0 && !record->active) {
+    const auto active = db.ActiveModel(state->info.id);
+    if (!active || active->version != parent)
+      return {ReplyStatus::kBadRequest, nullptr,
+              "version " + std::to_string(version) + " is a proposal on version " +
+                  std::to_string(parent) + ", but " +
+                  (active ? "version " + std::to_string(active->version) + " is active"
+                          : std::string("no version is active")) +
+                  ": diagnose again against the active model",
+              false};
+  }
   // Swapped in once the writer has made it the active one.
   return ReplyWhenWritten(
       Store(storage::ModelActivation{state->info.id, version}), request,
       {ReplyStatus::kOk, {{"actuator", state->info.id}, {"version", version}}, ""},
       [this, actuator = state->info.id, record = *record] {
         LoadModel(&actuators.at(actuator), record);
+        AnnounceModel(&actuators.at(actuator), record);
       });
 }
 
@@ -338,26 +360,34 @@ RpcOutcome Service::RpcDiagnose(const flexid::rpc_request_t& request, const nloh
       return {ReplyStatus::kNotFound, nullptr,
               state->info.id + " has no finished trial to diagnose", false};
   }
-  bool use_model = true;
-  if (const auto it = args.find("use_model"); it != args.end()) {
-    if (!it->is_boolean()) throw ArgumentError("argument \"use_model\" must be true or false");
-    use_model = it->get<bool>();
-  }
-  storage::SampleWriter* samples = writer.get();
-  const std::string database = config.database, id = state->info.id;
-  const RpcContext context{request.request_id, request.client_id};
-  const int64_t max_samples = config.identification.max_diagnosis_samples;
-  if (!worker->Submit([database, id, trial_ids, use_model, max_samples, context, samples] {
-        if (!samples->Flush())
-          return DiagnosisResult{
-              {context, id, "cannot commit samples: " + samples->last_error()}, nullptr, trial_ids};
-        return RunDiagnosis(database, id, trial_ids, use_model, max_samples, context);
-      }))
+  DiagnosisJob job{config.database, state->info.id, trial_ids,
+                   BoolArgument(args, "use_model", true),
+                   config.identification.max_diagnosis_samples};
+  if (BoolArgument(args, "propose", false)) job.propose_by = "diagnose";
+  if (!SubmitDiagnosis(job, {request.request_id, request.client_id}))
     return {ReplyStatus::kBusy, nullptr,
             "an identification or diagnosis is already running; try again when it ends", false};
-  spdlog::info("diagnosis started [actuator: {}, trials: {}]", id,
-               nlohmann::json(trial_ids).dump());
   return {ReplyStatus::kOk, nullptr, "", true};
+}
+
+bool Service::SubmitDiagnosis(const DiagnosisJob& job, const RpcContext& context) {
+  storage::SampleWriter* samples = writer.get();
+  if (!worker->Submit([job, context, samples] {
+        if (!samples->Flush()) {
+          DiagnosisResult failed;
+          failed.request = context;
+          failed.actuator_id = job.actuator_id;
+          failed.error = "cannot commit samples: " + samples->last_error();
+          failed.trial_ids = job.trial_ids;
+          return failed;
+        }
+        return RunDiagnosis(job, context);
+      }))
+    return false;
+  spdlog::info("diagnosis started [actuator: {}, trials: {}, propose: {}]", job.actuator_id,
+               nlohmann::json(job.trial_ids).dump(),
+               job.propose_by.empty() ? "no" : job.propose_by);
+  return true;
 }
 
 }  // namespace flexid::daemon

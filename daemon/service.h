@@ -225,8 +225,15 @@ struct Service {
   // worker.cc
   void OnWorkerResult(JobResult& result);
   void ReportDiagnosis(const DiagnosisResult& result);
+  // Runs a diagnosis on the worker (false: it is busy); its result comes back to
+  // OnWorkerResult, which answers `context` (empty request id: nobody to answer).
+  bool SubmitDiagnosis(const DiagnosisJob& job, const RpcContext& context);
+  // Stores a diagnosis's proposal (then a model_proposed alert), activates it when
+  // asked (adopt), and answers the request with the diagnosis and the new version.
+  void StoreProposal(const DiagnosisResult& result);
 
   // health.cc
+  int64_t LatestMessageUtime() const;
   int64_t LatestUtime() const;
   void RaiseHealth(const std::string& actuator_id, const std::string& kind, int severity,
                    int64_t start_utime, int64_t utime, const std::string& text);

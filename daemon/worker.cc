@@ -10,6 +10,7 @@
 #include <flexid/rpc_reply_t.hpp>
 
 #include "bus/clock.h"
+#include "daemon/proposal.h"
 #include "daemon/service.h"
 #include "flexid/version.h"
 #include "model/core/model_file.h"
@@ -48,47 +49,58 @@ std::string TrialWords(const std::vector<int64_t>& ids) {
   return text;
 }
 
-DiagnosisResult RunDiagnosis(const std::string& database, const std::string& actuator_id,
-                             const std::vector<int64_t>& trial_ids, bool use_model,
-                             int64_t max_samples, RpcContext request) {
+DiagnosisResult RunDiagnosis(const DiagnosisJob& job, RpcContext request) {
   DiagnosisResult result;
   result.request = std::move(request);
-  result.actuator_id = actuator_id;
-  result.trial_ids = trial_ids;
+  result.actuator_id = job.actuator_id;
+  result.trial_ids = job.trial_ids;
+  result.propose = !job.propose_by.empty();
   try {
-    storage::Database db = storage::Database::Open(database);
+    storage::Database db = storage::Database::Open(job.database);
     int64_t count = 0;
-    for (int64_t id : trial_ids) count += db.SampleCount(id);
-    if (count > max_samples)
-      throw std::runtime_error(TrialWords(trial_ids) + " have " + std::to_string(count) +
+    for (int64_t id : job.trial_ids) count += db.SampleCount(id);
+    if (count > job.max_samples)
+      throw std::runtime_error(TrialWords(job.trial_ids) + " have " + std::to_string(count) +
                                " samples; flexidd diagnoses at most " +
-                               std::to_string(max_samples) +
+                               std::to_string(job.max_samples) +
                                " (identification.max_diagnosis_samples)");
     std::vector<model::Recording> recordings;
-    for (int64_t id : trial_ids) {
+    std::vector<storage::Sample> all;
+    for (int64_t id : job.trial_ids) {
       const std::vector<storage::Sample> samples = db.Samples(id);
       recordings.push_back(RecordingOfTrial(samples, id, 200));
       result.trial_start_utimes.push_back(samples.front().utime);
+      if (result.propose) all.insert(all.end(), samples.begin(), samples.end());
     }
     std::optional<model::TsModel> trusted;
     model::DiagnoseOptions options;
-    int32_t version = 0;
-    if (use_model) {
-      if (const auto active = db.ActiveModel(actuator_id)) {
-        const model::ModelDocument doc =
-            model::ParseModelJson(active->model_json, "model " + std::to_string(active->version));
-        trusted = model::AsTsModel(doc);
-        options.baseline_effects =
-            model::EffectsOf(doc, "model " + std::to_string(active->version));
-        version = active->version;
+    std::optional<storage::ModelRecord> active;
+    if (job.use_model) active = db.ActiveModel(job.actuator_id);
+    if (active) {
+      const std::string source = "model " + std::to_string(active->version);
+      const model::ModelDocument doc = model::ParseModelJson(active->model_json, source);
+      trusted = model::AsTsModel(doc);
+      options.baseline_effects = model::EffectsOf(doc, source);
+    }
+    const model::Diagnosis diagnosis = model::Diagnose(recordings, trusted, options);
+    result.diagnosis = model::DiagnosisToJson(diagnosis);
+    if (job.trial_ids.size() == 1)
+      result.diagnosis["trial"] = job.trial_ids.front();
+    else
+      result.diagnosis["trials"] = job.trial_ids;
+    result.diagnosis["model_version"] = active ? active->version : 0;  // 0: identified
+    if (result.propose) {
+      try {
+        result.proposal = ProposalOf(
+            {job.actuator_id, &diagnosis, &recordings, active ? &*active : nullptr, job.trial_ids,
+             storage::HashSamples(all), job.propose_by, bus::WallClockUtime()});
+        const nlohmann::json lineage = result.proposal ? LineageOf(*result.proposal) : nullptr;
+        result.adopt = job.adopt_min_gain > 0 && lineage.is_object() &&
+                       lineage.value("heldout_gain", 0.0) >= job.adopt_min_gain;
+      } catch (const std::exception& e) {
+        result.proposal_error = e.what();
       }
     }
-    result.diagnosis = model::DiagnosisToJson(model::Diagnose(recordings, trusted, options));
-    if (trial_ids.size() == 1)
-      result.diagnosis["trial"] = trial_ids.front();
-    else
-      result.diagnosis["trials"] = trial_ids;
-    result.diagnosis["model_version"] = version;  // 0: identified on the trials
   } catch (const std::exception& e) {
     result.error = e.what();
     result.diagnosis = nullptr;
@@ -301,7 +313,66 @@ void Service::ReportDiagnosis(const DiagnosisResult& result) {
     alert.text = TrialWords(result.trial_ids) + ": " + f.value("explanation", "");
     Raise(&it->second, {alert});
   }
-  Reply(result.request, {flexid::rpc_reply_t::kOk, d, "", false});
+  if (!result.propose) {
+    Reply(result.request, {flexid::rpc_reply_t::kOk, d, "", false});
+  } else if (!result.proposal_error.empty()) {
+    spdlog::error("cannot propose the augmented model [actuator: {}, error: {}]",
+                  result.actuator_id, result.proposal_error);
+    Reply(result.request, {flexid::rpc_reply_t::kFailed, nullptr,
+                           "cannot propose the augmented model: " + result.proposal_error});
+  } else if (!result.proposal) {
+    nlohmann::json out = d;
+    out["proposed_version"] = nullptr;  // no effect named: nothing to propose
+    Reply(result.request, {flexid::rpc_reply_t::kOk, out, "", false});
+  } else {
+    StoreProposal(result);
+  }
+}
+
+void Service::StoreProposal(const DiagnosisResult& result) {
+  on_written.emplace(Store(*result.proposal), [this, result](const storage::WriteOutcome& written) {
+    if (!written.model) {
+      spdlog::error("cannot store the proposal [actuator: {}, error: {}]", result.actuator_id,
+                    written.error);
+      Reply(result.request, {flexid::rpc_reply_t::kFailed, nullptr,
+                             "cannot store the proposed model: " + written.error});
+      return;
+    }
+    const storage::ModelRecord proposal = *written.model;
+    Alert alert;
+    alert.kind = "model_proposed";
+    alert.severity = 0;
+    alert.start_utime = result.trial_start_utimes.front();
+    alert.end_utime = result.trial_start_utimes.back();
+    alert.text = result.actuator_id + ": " + ProposalWords(proposal);
+    if (auto it = actuators.find(result.actuator_id); it != actuators.end())
+      Raise(&it->second, {alert});
+    nlohmann::json out = result.diagnosis;
+    out["proposed_version"] = proposal.version;
+    out["adopted"] = result.adopt;
+    if (!result.adopt) {
+      Reply(result.request, {flexid::rpc_reply_t::kOk, out, ""});
+      return;
+    }
+    // Adopted: activated once the writer has stored the activation, then swapped in.
+    on_written.emplace(
+        Store(storage::ModelActivation{result.actuator_id, proposal.version}),
+        [this, result, proposal, out](const storage::WriteOutcome& activated) {
+          if (!activated.error.empty()) {
+            spdlog::error("cannot adopt the proposal [actuator: {}, version: {}, error: {}]",
+                          result.actuator_id, proposal.version, activated.error);
+            Reply(result.request, {flexid::rpc_reply_t::kFailed, nullptr,
+                                   "proposed as version " + std::to_string(proposal.version) +
+                                       " but not adopted: " + activated.error});
+            return;
+          }
+          if (auto it = actuators.find(result.actuator_id); it != actuators.end()) {
+            LoadModel(&it->second, proposal);
+            AnnounceModel(&it->second, proposal);
+          }
+          Reply(result.request, {flexid::rpc_reply_t::kOk, out, ""});
+        });
+  });
 }
 
 }  // namespace flexid::daemon

@@ -48,6 +48,27 @@ struct DiagnosisResult : JobOrigin {
   nlohmann::json diagnosis = nullptr;
   std::vector<int64_t> trial_ids = {};
   std::vector<int64_t> trial_start_utimes = {};
+  // Asked to propose (DiagnosisJob::propose_by): the augmented model as a new inactive
+  // version (proposal.h), to be stored by the writer; nothing when no effect was named.
+  // proposal_error: why it could not be built (the diagnosis stands).
+  bool propose = false;
+  bool adopt = false;  // activate the proposal once stored (on_alert = adopt, gain passed)
+  std::optional<storage::ModelRecord> proposal = std::nullopt;
+  std::string proposal_error = {};
+};
+
+// What a diagnosis job is asked: which trials of which actuator, against its active model
+// (use_model) or a baseline identified on them; and whether to propose the augmented model
+// (propose_by "diagnose" or "policy"; empty: no) and to adopt it when its held-out gain
+// reaches adopt_min_gain (0: never adopt).
+struct DiagnosisJob {
+  std::string database = {};
+  std::string actuator_id = {};
+  std::vector<int64_t> trial_ids = {};
+  bool use_model = true;
+  int64_t max_samples = 0;
+  std::string propose_by = {};
+  double adopt_min_gain = 0.0;
 };
 
 using JobResult = std::variant<IdentificationResult, DiagnosisResult>;
@@ -91,9 +112,7 @@ std::string TrialWords(const std::vector<int64_t>& ids);
 // first) against the actuator's active model (or, without one or when asked, against the
 // seed's structure identified on the trials), on the worker thread with its own connection
 // (reads only).
-DiagnosisResult RunDiagnosis(const std::string& database, const std::string& actuator_id,
-                             const std::vector<int64_t>& trial_ids, bool use_model,
-                             int64_t max_samples, RpcContext request);
+DiagnosisResult RunDiagnosis(const DiagnosisJob& job, RpcContext request);
 
 // Identification of one actuator on stored trials, on the worker thread with its own
 // connection (reads only): samples -> recordings -> T-S model -> the record of a new active

@@ -91,6 +91,10 @@ struct ModelRecord {
   std::string samples_hash;        // HashSamples of the samples used
   std::string flexid_version;      // of the build that identified it
   bool active = false;             // at most one active model per actuator
+  // A proposed version's lineage (a JSON object: the parent version, the effects added
+  // with their parameters and intervals, the held-out gain, the trials diagnosed; see
+  // daemon/proposal.h); empty for a model identified from trials.
+  std::string lineage_json;
 };
 
 struct AlertRecord {
@@ -106,7 +110,7 @@ struct AlertRecord {
 // (SQLite serialises writers across connections; readers never wait for writers in WAL).
 class Database {
  public:
-  static constexpr int kSchemaVersion = 1;
+  static constexpr int kSchemaVersion = 2;
 
   // Opens the file (creating it if absent) and migrates it to kSchemaVersion. Sets
   // journal_mode=WAL, synchronous=NORMAL (see the file comment for the loss window),

@@ -20,7 +20,7 @@ namespace {
 // Column list shared by the model queries: constant text (values are always bound).
 constexpr const char* kModelColumns =
     "id, actuator_id, version, created_utime, model_json, fit_json, samples_hash, "
-    "flexid_version, active";
+    "flexid_version, active, lineage_json";
 
 ModelRecord ReadModelRow(const Statement& row) {
   ModelRecord model;
@@ -33,6 +33,7 @@ ModelRecord ReadModelRow(const Statement& row) {
   model.samples_hash = row.Text(6);
   model.flexid_version = row.Text(7);
   model.active = row.Int64(8) != 0;
+  model.lineage_json = row.Text(9);
   return model;
 }
 
@@ -68,7 +69,8 @@ ModelRecord Database::StoreModel(ModelRecord record) {
         .Run();
   Statement(db, path_,
             "INSERT INTO models (actuator_id, version, created_utime, model_json, fit_json, "
-            "samples_hash, flexid_version, active) VALUES (?, ?, ?, ?, ?, ?, ?, ?)")
+            "samples_hash, flexid_version, active, lineage_json) "
+            "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)")
       .Bind(1, record.actuator_id)
       .Bind(2, int64_t{record.version})
       .Bind(3, record.created_utime)
@@ -77,6 +79,7 @@ ModelRecord Database::StoreModel(ModelRecord record) {
       .Bind(6, record.samples_hash)
       .Bind(7, record.flexid_version)
       .Bind(8, int64_t{record.active ? 1 : 0})
+      .Bind(9, record.lineage_json)
       .Run();
   record.id = sqlite3_last_insert_rowid(db);
   Statement insert(db, path_,

@@ -47,8 +47,8 @@ int64_t NowUtime() {
 
 // --- migrations --------------------------------------------------------------------
 // Each step brings the schema from version - 1 to version and runs inside the migration
-// transaction (DDL is transactional in SQLite). To add version 2: write MigrateTo2, append
-// {2, "...", &MigrateTo2} to kMigrations and set Database::kSchemaVersion = 2.
+// transaction (DDL is transactional in SQLite). To add version N: write MigrateToN, append
+// {N, "...", &MigrateToN} to kMigrations and set Database::kSchemaVersion = N.
 
 void MigrateTo1(sqlite3* db, const std::string& path) {
   static_assert(kApplicationId == 1179408452, "the PRAGMA below spells kApplicationId");
@@ -127,6 +127,12 @@ void MigrateTo1(sqlite3* db, const std::string& path) {
   )sql");
 }
 
+// Version 2: a model's lineage (ModelRecord::lineage_json), for versions proposed by a
+// diagnosis. Existing models were identified from trials: no lineage.
+void MigrateTo2(sqlite3* db, const std::string& path) {
+  ExecScript(db, path, "ALTER TABLE models ADD COLUMN lineage_json TEXT NOT NULL DEFAULT '';");
+}
+
 struct Migration {
   int version;
   const char* description;
@@ -135,6 +141,7 @@ struct Migration {
 
 constexpr Migration kMigrations[] = {
     {1, "initial schema", &MigrateTo1},
+    {2, "model lineage", &MigrateTo2},
 };
 
 constexpr bool MigrationsAreConsecutive() {

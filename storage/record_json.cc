@@ -9,6 +9,13 @@ nlohmann::json FiniteOrNull(double value) {
   return std::isfinite(value) ? nlohmann::json(value) : nlohmann::json(nullptr);
 }
 
+// A proposal's lineage as stored (an object), or null for an identified model.
+nlohmann::json Lineage(const ModelRecord& model) {
+  if (model.lineage_json.empty()) return nullptr;
+  nlohmann::json lineage = nlohmann::json::parse(model.lineage_json, nullptr, false);
+  return lineage.is_object() ? lineage : nlohmann::json(nullptr);
+}
+
 }  // namespace
 
 nlohmann::json TrialJson(const Trial& trial) {
@@ -46,7 +53,8 @@ nlohmann::json ModelSummaryJson(const ModelRecord& model) {
           {"trials", model.trial_ids},
           {"samples_hash", model.samples_hash},
           {"flexid_version", model.flexid_version},
-          {"fit", fit}};
+          {"fit", fit},
+          {"lineage", Lineage(model)}};
 }
 
 nlohmann::json SamplesPageJson(const Trial& trial, int64_t offset,
@@ -58,12 +66,9 @@ nlohmann::json SamplesPageJson(const Trial& trial, int64_t offset,
     volts.push_back(s.voltage_V);
     mm.push_back(s.deflection_mm);
   }
-  return {{"trial", TrialJson(trial)},
-          {"offset", offset},
-          {"total", trial.samples},
-          {"utime", utime},
-          {"voltage_V", volts},
-          {"deflection_mm", mm}};
+  return {{"trial", TrialJson(trial)}, {"offset", offset},
+          {"total", trial.samples},    {"utime", utime},
+          {"voltage_V", volts},        {"deflection_mm", mm}};
 }
 
 nlohmann::json ActuatorJson(const Actuator& actuator) {

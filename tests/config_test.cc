@@ -31,6 +31,7 @@ TEST(Config, TheExampleFileLoadsAndValidates) {
   EXPECT_EQ(c.identification.poles, 4);
   EXPECT_EQ(c.identification.max_diagnosis_samples, 200000);
   EXPECT_EQ(c.alerts.false_alarms_per_hour, 0.1);
+  EXPECT_EQ(c.alerts.sigma_floor_mm, 0.005);
   EXPECT_FALSE(Describe(c).empty());
 }
 
@@ -72,6 +73,15 @@ TEST(Config, BadFilesAreNamedWithTheProblem) {
             std::string::npos);
   EXPECT_NE(ErrorOf(write("diagnosis.toml", "[identification]\nmax_diagnosis_samples = 10\n"))
                 .find("identification.max_diagnosis_samples: must be >= 200"),
+            std::string::npos);
+  // The floor under the monitor's sigma: a number, finite and > 0.
+  EXPECT_EQ(ErrorOf(write("floor.toml", "[alerts]\nsigma_floor_mm = 0.001\n")), "no error");
+  for (const char* bad : {"0", "-0.01", "nan", "inf"})
+    EXPECT_EQ(ErrorOf(write("floor.toml", std::string("[alerts]\nsigma_floor_mm = ") + bad + "\n")),
+              "alerts: sigma_floor_mm must be finite and > 0")
+        << bad;
+  EXPECT_NE(ErrorOf(write("floor.toml", "[alerts]\nsigma_floor_mm = \"fine\"\n"))
+                .find("alerts.sigma_floor_mm: expected a number"),
             std::string::npos);
   EXPECT_NE(ErrorOf(dir.File("missing.toml")).find("missing.toml"), std::string::npos);
 }

@@ -21,6 +21,8 @@
 #include "bus/clock.h"
 #include "cli_process.h"
 #include "lcmtypes/message_auth.h"
+#include "model/core/model_file.h"
+#include "model/core/presets.h"
 #include "scratch_dir.h"
 #include "storage/database.h"
 
@@ -96,17 +98,24 @@ class Listener {
   int requests_ = 0;
 };
 
+// flexidd's configuration for a test: its own file, bus and name, no log file.
+daemon::Config TestConfig(const std::string& database, const std::string& url,
+                          const std::string& daemon_id) {
+  daemon::Config config;
+  config.database = database;
+  config.lcm_url = url;
+  config.log_file = "";
+  config.daemon_id = daemon_id;
+  return config;
+}
+
 class DaemonEndToEnd : public ::testing::Test {
  protected:
   void SetUp() override {
     url_ = RandomUrl();
     listener_ = std::make_unique<Listener>(url_);
     if (!listener_->good()) GTEST_SKIP() << "no LCM multicast on this host (" << url_ << ")";
-    daemon::Config config;
-    config.database = scratch_.File("flexid.db");
-    config.lcm_url = url_;
-    config.log_file = "";
-    config.daemon_id = "test";
+    const daemon::Config config = TestConfig(scratch_.File("flexid.db"), url_, "test");
     daemon::Validate(config);
     daemon_ = std::make_unique<daemon::Daemon>(config);
     key_file_ = daemon::KeyFilePath(config);
@@ -269,12 +278,8 @@ TEST(DaemonChannelPrefix, RigImportAndCommandLineFollowThePrefix) {
       ->setQueueCapacity(1 << 14);
   lcm.subscribe("FLEXID/.*", &ChannelCounter::On, &standard)->setQueueCapacity(1 << 14);
 
-  daemon::Config config;
-  config.database = scratch.File("flexid.db");
-  config.lcm_url = url;
+  daemon::Config config = TestConfig(scratch.File("flexid.db"), url, "prefixed");
   config.channel_prefix = "lab.7";
-  config.log_file = "";
-  config.daemon_id = "prefixed";
   daemon::Validate(config);
   daemon::Daemon daemon(config);
   const std::string key_file = daemon::KeyFilePath(config);
@@ -333,6 +338,69 @@ TEST(DaemonChannelPrefix, RigImportAndCommandLineFollowThePrefix) {
       testing::RunCommand(flexid + "--channel-prefix 'lab/7' rpc status", scratch.path());
   EXPECT_EQ(bad_prefix.exit_code, 2) << bad_prefix.err;
   EXPECT_NE(bad_prefix.err.find(bus::kPrefixRule), std::string::npos) << bad_prefix.err;
+}
+
+// A model identified from noise-free rig data: the rig's own model with its gains off by
+// 1 part in 10^5 (identification never returns the truth exactly), with the tiny fit RMSE
+// such data gives. On the rig's clean samples the residual is that model error, ~1e-4 mm
+// at the 2 V plateau: nothing a sensor resolves. Without a floor under sigma, S1 (RMSE
+// 1e-5 mm, taken as the noise) would raise a critical alert every hold (issue 15: "beyond
+// 0.000 mm ... sigma 0.0000 mm"), and S2 (RMSE 0: sigma estimated, ~1e-7 mm from this
+// smooth residual) would stay in its warm-up for 1200 s and then do the same. Floored at
+// alerts.sigma_floor_mm (model/diagnose/monitor.h) both get finite thresholds and raise nothing.
+TEST(DaemonSigmaFloor, ModelsWithNoNoiseRaiseNoAlertsOnTheirOwnCleanData) {
+  const testing::ScratchDir scratch;
+  const std::string url = RandomUrl();
+  Listener listener(url);
+  if (!listener.good()) GTEST_SKIP() << "no LCM multicast on this host (" << url << ")";
+  const daemon::Config config = TestConfig(scratch.File("flexid.db"), url, "floor");
+  daemon::Validate(config);
+  model::TsModel identified = model::SeedTsModel();
+  for (model::LocalModel& rule : identified.rules)
+    for (double& b_k : rule.tf.num) b_k *= 1.00001;
+  for (const auto& [actuator, rmse_mm] : {std::pair{"S1", 1e-5}, std::pair{"S2", 0.0}}) {
+    storage::ModelRecord record;
+    record.actuator_id = actuator;
+    record.model_json = model::ModelToJson(model::FromTsModel(identified)).dump();
+    record.fit_json = nlohmann::json{{"fit_percent", 100.0}, {"rmse_mm", rmse_mm}}.dump();
+    record.active = true;
+    storage::Database::Open(config.database).StoreModel(record);
+  }
+  daemon::Daemon daemon(config);
+  const std::string key_file = daemon::KeyFilePath(config);
+  const LoopThread loop(daemon);
+
+  // 660 s of 2 V square wave on both, without noise. S2's warm-up ends at the first block
+  // after 120 s of usable residual (its estimate is far below the floor), and the
+  // detectors run for the rest.
+  const auto rig = testing::RunCommand(
+      kRig + " --lcm '" + url + "' --actuator S1,S2 --protocol " +
+          "square:level=2,period=220,duty=0.5,cycles=3 --speed 200 --trial-control " +
+          "--key-file '" + key_file + "' --start-utime 1000000000000",
+      scratch.path());
+  ASSERT_EQ(rig.exit_code, 0) << rig.err;
+  listener.Pump(1000ms);
+
+  ASSERT_GT(listener.predictions.size(), 12000u);  // 13,200 sent, UDP may drop a few
+  double largest_mm = 0.0;
+  for (const auto& p : listener.predictions) {
+    EXPECT_EQ(p.model_version, 1);
+    largest_mm = std::max(largest_mm, std::abs(p.residual_mm));
+  }
+  EXPECT_LT(largest_mm, 2e-4) << "not the model's clean data";
+  std::string warnings;
+  std::vector<flexid::alert_t> estimates;
+  for (const auto& a : listener.alerts) {
+    if (a.severity >= 1) warnings += a.kind + ": " + a.text + "\n";
+    if (a.kind == "noise_estimate") estimates.push_back(a);
+  }
+  EXPECT_EQ(warnings, "");
+  // S1's sigma is given: no estimate. S2's is estimated, and the floor is used.
+  ASSERT_EQ(estimates.size(), 1u) << "S2's monitor did not finish its warm-up";
+  EXPECT_EQ(estimates[0].actuator_id, "S2");
+  EXPECT_EQ(estimates[0].magnitude_mm, config.alerts.sigma_floor_mm);
+  EXPECT_NE(estimates[0].text.find("sigma 0.0050 mm (the floor sigma_floor_mm"), std::string::npos)
+      << estimates[0].text;
 }
 
 }  // namespace

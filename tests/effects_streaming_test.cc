@@ -149,5 +149,22 @@ TEST(EffectsStreaming, TheScaleTravelsInTheAugmentationAndIsChecked) {
   }
 }
 
+TEST(EffectsStreaming, AParameterOutOfItsRangeIsNamed) {
+  model::Augmentation a{"back_relaxation", {{"fraction", 1.3}, {"tau_s", 30.0}}};
+  try {
+    model::EffectFromAugmentation(a);
+    FAIL() << "accepted a fraction of 1.3";
+  } catch (const model::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("fraction must be [0, 1), not 1.3"), std::string::npos)
+        << e.what();
+  }
+  EXPECT_EQ(model::EffectProblem({EffectKind::kHysteresis, {0.1, 0.0}}),
+            "hysteresis: reach_mm must be > 0, not 0");
+  EXPECT_EQ(model::EffectProblem({EffectKind::kElectrolysisSaturation, {4.0, 0.5}}), "");
+  EXPECT_THROW(model::AugmentedStreamingSimulator(model::SeedTsModel(),
+                                                  {Effect{EffectKind::kPolarityAsymmetry, {-1.0}}}),
+               model::InputError);
+}
+
 }  // namespace
 }  // namespace flexid

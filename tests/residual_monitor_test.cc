@@ -364,12 +364,17 @@ TEST(ResidualMonitorDrift, NoneWithoutTheRamp) {
 // ---------------------------------------------------------------------------------------
 // Large residual: a 1 mm offset for 30 s (20 sigma).
 
+// 600 s at 0 V with an offset of the residual from 300 to 330 s.
+std::vector<Alert> RunOffset(ResidualMonitor& monitor, ResidualNoise& noise, double offset_mm) {
+  Rig rig;
+  rig.effect_mm = [offset_mm](double t) { return t >= 300.0 && t < 330.0 ? offset_mm : 0.0; };
+  return RunRig(monitor, rig, noise, 0, 600);
+}
+
 TEST(ResidualMonitorResidual, OneMillimetreOffset) {
   ResidualMonitor monitor("S1", Given(0.05));
   ResidualNoise noise(0.05, 0.0, 41);
-  Rig rig;
-  rig.effect_mm = [](double t) { return t >= 300.0 && t < 330.0 ? 1.0 : 0.0; };
-  const std::vector<Alert> alerts = RunRig(monitor, rig, noise, 0, 600);
+  const std::vector<Alert> alerts = RunOffset(monitor, noise, 1.0);
   const std::vector<Alert> found = OfKind(alerts, "residual");
   ASSERT_EQ(found.size(), 1u) << Describe(alerts);  // latched for the whole excursion
   const Alert& alert = found[0];
@@ -396,9 +401,7 @@ TEST(ResidualMonitorResidual, MinEffectFloorsTheThreshold) {
   options.min_effect_mm = 2.0;
   ResidualMonitor monitor("S1", options);
   ResidualNoise noise(0.05, 0.0, 41);
-  Rig rig;
-  rig.effect_mm = [](double t) { return t >= 300.0 && t < 330.0 ? 1.0 : 0.0; };
-  const std::vector<Alert> alerts = RunRig(monitor, rig, noise, 0, 600);
+  const std::vector<Alert> alerts = RunOffset(monitor, noise, 1.0);
   EXPECT_TRUE(OfKind(alerts, "residual").empty()) << Describe(alerts);
 }
 
@@ -518,6 +521,95 @@ TEST(ResidualMonitorInput, NanResidualAndOutOfOrderAreIgnored) {
 }
 
 // ---------------------------------------------------------------------------------------
+// Sigma floor: a model that explains its clean data exactly leaves a residual of rounding
+// only, whose sigma is 0 (the header's "Floor").
+
+// A noise-free rig read by a sensor with a 0.001 mm resolution: the first-order response
+// (3 s, 0.4 mm/V) to the 5 V square wave, quantised, less the model's exact prediction.
+// At rest the residual is exactly 0 (MAD 0, RMS 0); while the deflection moves it steps
+// by up to 0.0005 mm.
+double QuantisationResidual(double t_s) {
+  constexpr double kResolution_mm = 0.001, kLagTau_s = 3.0, kGain_mm_per_V = 0.4;
+  const double since_s = SinceHold(t_s);
+  const double level_mm = kGain_mm_per_V * SquareWave(t_s, 5.0);
+  const double previous_mm = kGain_mm_per_V * SquareWave(t_s - kHalfPeriod_s, 5.0);
+  const double y_mm = level_mm + (previous_mm - level_mm) * std::exp(-since_s / kLagTau_s);
+  return std::round(y_mm / kResolution_mm) * kResolution_mm - y_mm;
+}
+
+// Two hours of that residual under the 5 V square wave.
+std::vector<Alert> RunQuantised(ResidualMonitor& monitor) {
+  ResidualNoise none(0.0, 0.0, 1);
+  Rig rig;
+  rig.voltage_V = [](double t) { return SquareWave(t, 5.0); };
+  rig.effect_mm = QuantisationResidual;
+  return RunRig(monitor, rig, none, 0, 7200);
+}
+
+TEST(ResidualMonitorSigmaFloor, EstimatedZeroSigmaGetsTheFloorAndNoAlerts) {
+  ResidualMonitor monitor("S1", Given(0.0));
+  const std::vector<Alert> alerts = RunQuantised(monitor);
+  ASSERT_TRUE(monitor.calibrated());
+  EXPECT_EQ(monitor.noise_mm(), MonitorOptions{}.sigma_floor_mm);
+  EXPECT_EQ(Warnings(alerts), 0) << Describe(alerts);
+  const std::vector<Alert> said = OfKind(alerts, "noise_estimate");
+  ASSERT_EQ(said.size(), 1u) << Describe(alerts);
+  EXPECT_EQ(said[0].magnitude_mm, 0.005);
+  EXPECT_NE(said[0].text.find("sigma 0.0050 mm (the floor sigma_floor_mm"), std::string::npos)
+      << said[0].text;
+}
+
+// The daemon passes the model's fit RMSE as the noise: from noise-free data, far below
+// what the sensor resolves.
+TEST(ResidualMonitorSigmaFloor, GivenSigmaBelowTheFloorIsRaisedToIt) {
+  ResidualMonitor monitor("S1", Given(1e-9));
+  EXPECT_EQ(monitor.noise_mm(), 0.005);
+  const std::vector<Alert> alerts = RunQuantised(monitor);
+  ASSERT_TRUE(monitor.calibrated());
+  EXPECT_EQ(Warnings(alerts), 0) << Describe(alerts);
+  EXPECT_TRUE(OfKind(alerts, "noise_estimate").empty());
+}
+
+// A smooth model error far below the floor (rho ~ 1): sigma_hat is too uncertain to end
+// the warm-up for 10 noise_estimation_s, but the floor will be used whatever its error,
+// so the detectors start after noise_estimation_s.
+TEST(ResidualMonitorSigmaFloor, WarmUpEndsOnceTheFloorWillBeUsed) {
+  ResidualMonitor monitor("S1", Given(0.0));
+  ResidualNoise none(0.0, 0.0, 1);
+  Rig rig;
+  rig.effect_mm = [](double t) { return 1e-4 * std::sin(2 * std::numbers::pi * t / 300.0); };
+  const std::vector<Alert> alerts = RunRig(monitor, rig, none, 0, 200);
+  ASSERT_TRUE(monitor.calibrated()) << Describe(alerts);
+  EXPECT_GT(monitor.lag1_autocorrelation(), 0.9);
+  EXPECT_EQ(monitor.noise_mm(), 0.005);
+  EXPECT_EQ(Warnings(alerts), 0) << Describe(alerts);
+}
+
+// The floor is configurable, applies to a given sigma above the default, and leaves a
+// sigma above it alone.
+TEST(ResidualMonitorSigmaFloor, ConfiguredFloorAppliesOnlyBelowIt) {
+  MonitorOptions options = Given(0.01);
+  options.sigma_floor_mm = 0.02;
+  EXPECT_EQ(ResidualMonitor("S1", options).noise_mm(), 0.02);
+  options.sigma_floor_mm = 0.001;
+  EXPECT_EQ(ResidualMonitor("S1", options).noise_mm(), 0.01);
+}
+
+// Floored, the monitor still sees what a model misses: a 0.1 mm offset on a clean
+// residual is a residual alert with a threshold of c times the floor.
+TEST(ResidualMonitorSigmaFloor, RealEffectsStillAlert) {
+  ResidualMonitor monitor("S1", Given(0.0));
+  ResidualNoise none(0.0, 0.0, 1);
+  const std::vector<Alert> alerts = RunOffset(monitor, none, 0.1);
+  const std::vector<Alert> found = OfKind(alerts, "residual");
+  ASSERT_EQ(found.size(), 1u) << Describe(alerts);
+  EXPECT_NEAR(found[0].magnitude_mm, 0.1, 1e-12);
+  EXPECT_GT(found[0].threshold_mm, 2.0 * 0.005);
+  EXPECT_LT(found[0].threshold_mm, 0.1);
+  EXPECT_NE(found[0].text.find("sigma 0.0050 mm"), std::string::npos) << found[0].text;
+}
+
+// ---------------------------------------------------------------------------------------
 // The statistics.
 
 TEST(ResidualMonitorStatistics, RunStartProbabilityWhiteIsClosedForm) {
@@ -589,6 +681,8 @@ TEST(MonitorOptions, Validation) {
       {[](MonitorOptions& o) { o.dropout_s = 0; }, "dropout_s"},
       {[](MonitorOptions& o) { o.rest_band_V = NAN; }, "rest_band_V"},
       {[](MonitorOptions& o) { o.noise_estimation_s = 0; }, "noise_estimation_s"},
+      {[](MonitorOptions& o) { o.sigma_floor_mm = 0; }, "sigma_floor_mm"},
+      {[](MonitorOptions& o) { o.sigma_floor_mm = NAN; }, "sigma_floor_mm"},
   };
   for (const auto& [spoil, field] : bad) {
     MonitorOptions options;

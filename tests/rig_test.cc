@@ -17,6 +17,7 @@
 #include <lcm/lcm-cpp.hpp>
 #include <map>
 #include <memory>
+#include <optional>
 #include <random>
 #include <regex>
 #include <sstream>
@@ -1378,6 +1379,44 @@ TEST(Runner, SeveralActuatorsArePacedAsOne) {
   EXPECT_EQ(c.messages.size(), 20u + 2u);  // 20 deflections, voltage at 0 s and 1 s
 }
 
+// Without --start-utime: the wall clock, unless flexidd has seen a later sample; then
+// kRestartGap_s after it (one period when that is longer), saturating rather than wrapping.
+TEST(Runner, ContinuedStartUtimeGoesAfterTheLatestSampleOnlyIfItIsLater) {
+  constexpr int64_t kWall = 1'700'000'000'000'000;
+  EXPECT_EQ(rig::ContinuedStartUtime(kWall, std::nullopt, 10.0), kWall);
+  EXPECT_EQ(rig::ContinuedStartUtime(kWall, kWall - 5'000'000, 10.0), kWall);
+  EXPECT_EQ(rig::ContinuedStartUtime(kWall, kWall - 1'000'000, 10.0), kWall);
+  EXPECT_EQ(rig::ContinuedStartUtime(kWall, kWall + 436'000'000, 10.0), kWall + 437'000'000);
+  EXPECT_EQ(rig::ContinuedStartUtime(kWall, kWall, 0.25), kWall + 4'000'000);  // one period
+  EXPECT_EQ(rig::ContinuedStartUtime(kWall, INT64_MAX - 10, 10.0), INT64_MAX);
+}
+
+// The rig learns its start from flexidd after its input is checked: moving the start moves
+// every utime and nothing else; a start that leaves no room is refused, as in the
+// constructor, and the run keeps its start.
+TEST(Rig, SetStartUtimeMovesMessageTimeOnly) {
+  rig::Rig moved(GainModel(), ParseProtocol("step:level=1,duration=2"), {}, StartingAt(0));
+  moved.SetStartUtime(5'000'000);
+  rig::Rig direct(GainModel(), ParseProtocol("step:level=1,duration=2"), {}, StartingAt(5'000'000));
+  rig::RigSample a, b;
+  while (direct.Next(&b)) {
+    ASSERT_TRUE(moved.Next(&a));
+    EXPECT_EQ(a.utime, b.utime);
+    EXPECT_EQ(a.deflection_mm, b.deflection_mm);
+    EXPECT_EQ(a.publish_voltage, b.publish_voltage);
+  }
+  EXPECT_FALSE(moved.Next(&a));
+  EXPECT_EQ(moved.UtimeOf(0), 5'000'000);
+
+  rig::Rig refused(GainModel(), ParseProtocol("step:level=1,duration=2"), {}, StartingAt(7));
+  EXPECT_EQ(ErrorOf([&] { refused.SetStartUtime(INT64_MAX - 10); }),
+            "the start utime is too large for the protocol");
+  EXPECT_EQ(ErrorOf([&] { refused.SetStartUtime(-1); }), "the start utime must be >= 0");
+  EXPECT_EQ(refused.UtimeOf(0), 7);
+  refused.Next(&a);
+  EXPECT_THROW(refused.SetStartUtime(0), std::logic_error);
+}
+
 TEST(Runner, RigsThatDoNotAgreeCannotRunTogether) {
   rig::Rig one(GainModel(), ParseProtocol("hold:level=1,duration=1"), {}, StartingAt(0));
   rig::Rig two(GainModel(), ParseProtocol("hold:level=1,duration=2"), {}, StartingAt(0));
@@ -1496,6 +1535,26 @@ TEST_F(RigBinary, PublishesWhatItsSummarySaysOverLcm) {
   EXPECT_EQ(counter.trial_actions, (std::vector<int8_t>{flexid::trial_control2_t::kStart,
                                                         flexid::trial_control2_t::kStop}));
   EXPECT_TRUE(counter.signed_ok) << "trial control not signed with the key given";
+}
+
+// No flexidd on the bus to ask where message time stands: the wall clock, and a line on
+// stderr says why. (With a flexidd: tests/rig_live_test.cc.)
+TEST_F(RigBinary, WithoutFlexiddMessageTimeStartsAtTheWallClock) {
+  const std::string url = RandomUdpmUrl();
+  const int64_t before_utime = bus::WallClockUtime();
+  const auto result =
+      Run("--lcm '" + url + "' --actuator E2E --protocol hold:level=1,duration=1 --speed 0");
+  const int64_t after_utime = bus::WallClockUtime();
+  ASSERT_EQ(result.exit_code, 0) << result.err;
+  EXPECT_EQ(result.err,
+            "flexid-rig: no flexidd answered status within 0.5 s: message time starts at the "
+            "wall clock [url: " +
+                url + "]\n");
+  std::smatch match;
+  ASSERT_TRUE(std::regex_search(result.out, match, std::regex("final utime (\\d+)"))) << result.out;
+  const int64_t first_utime = std::stoll(match[1].str()) - 900'000;  // 10 samples at 10 Hz
+  EXPECT_GE(first_utime, before_utime);
+  EXPECT_LE(first_utime, after_utime);
 }
 
 TEST_F(RigBinary, TrialControlWithoutAKeyFailsBeforeSendingAnything) {

@@ -120,7 +120,7 @@ TEST(Database, CreatesOpensAndReopens) {
     EXPECT_EQ(moved.Actuators().size(), 1u);
   }
   Database db = Database::Open(path);
-  EXPECT_EQ(db.SchemaVersion(), 1);
+  EXPECT_EQ(db.SchemaVersion(), Database::kSchemaVersion);
   ASSERT_TRUE(db.FindActuator("S1").has_value());
   EXPECT_EQ(db.FindActuator("S1")->pattern, "serpentine");
   RawConnection raw(path);
@@ -128,28 +128,76 @@ TEST(Database, CreatesOpensAndReopens) {
   EXPECT_EQ(raw.Query("PRAGMA application_id"), "1179408452");  // 'FLXD'
 }
 
-TEST(Database, MigratesAnEmptyFileAndLeavesAVersion1DatabaseAsItIs) {
+TEST(Database, MigratesAnEmptyFileAndLeavesACurrentDatabaseAsItIs) {
   ScratchDir dir;
   const std::string path = dir.File("empty.db");
   std::ofstream(path).close();  // a 0-byte file is an empty SQLite database: version 0
-  { EXPECT_EQ(Database::Open(path).SchemaVersion(), 1); }
+  { EXPECT_EQ(Database::Open(path).SchemaVersion(), Database::kSchemaVersion); }
   {
     RawConnection raw(path);
-    EXPECT_EQ(raw.Query("SELECT count(*) FROM schema_version"), "1");
+    EXPECT_EQ(raw.Query("SELECT count(*) FROM schema_version"),
+              std::to_string(Database::kSchemaVersion));
     EXPECT_EQ(raw.Query("SELECT description FROM schema_version WHERE version = 1"),
               "initial schema");
+    EXPECT_EQ(raw.Query("SELECT description FROM schema_version WHERE version = 2"),
+              "model lineage");
   }
-  // A database created at version 1, opened again: nothing to apply, nothing re-applied.
+  // A database created at the current version, opened again: nothing re-applied.
   {
     Database db = Database::Open(path);
-    EXPECT_EQ(db.SchemaVersion(), 1);
     db.StartTrial("S1", "step:level=2", 10);
   }
   Database db = Database::Open(path);
-  EXPECT_EQ(db.SchemaVersion(), 1);
+  EXPECT_EQ(db.SchemaVersion(), Database::kSchemaVersion);
   EXPECT_EQ(db.Trials().size(), 1u);
   RawConnection raw(path);
-  EXPECT_EQ(raw.Query("SELECT count(*) FROM schema_version"), "1");
+  EXPECT_EQ(raw.Query("SELECT count(*) FROM schema_version"),
+            std::to_string(Database::kSchemaVersion));
+}
+
+// A model record whose contents the database does not interpret, active.
+ModelRecord ActiveTestModel(const std::string& actuator_id) {
+  ModelRecord m;
+  m.actuator_id = actuator_id;
+  m.model_json = R"({"kind": "test model"})";
+  m.fit_json = R"({"fit_percent": 90})";
+  m.active = true;
+  return m;
+}
+
+TEST(Database, MigratesAVersion1FileKeepingItsModels) {
+  ScratchDir dir;
+  const std::string path = dir.File("v1.db");
+  {
+    Database db = Database::Open(path);
+    db.StoreModel(ActiveTestModel("S1"));
+  }
+  {  // as flexid with schema version 1 left it
+    RawConnection raw(path);
+    raw.Exec(
+        "ALTER TABLE models DROP COLUMN lineage_json; DELETE FROM schema_version WHERE version = "
+        "2");
+  }
+  Database db = Database::Open(path);
+  EXPECT_EQ(db.SchemaVersion(), 2);
+  const auto models = db.Models("S1");
+  ASSERT_EQ(models.size(), 1u);
+  EXPECT_TRUE(models[0].active);
+  EXPECT_EQ(models[0].lineage_json, "");
+}
+
+TEST(Database, AModelKeepsItsLineage) {
+  ScratchDir dir;
+  Database db = Database::Open(dir.File("lineage.db"));
+  const ModelRecord parent = ActiveTestModel("S1");
+  db.StoreModel(parent);
+  ModelRecord proposal = parent;
+  proposal.active = false;
+  proposal.lineage_json = R"({"parent_version":1,"heldout_gain":3.5})";
+  EXPECT_EQ(db.StoreModel(proposal).version, 2);
+  EXPECT_EQ(db.FindModel("S1", 2)->lineage_json, proposal.lineage_json);
+  EXPECT_EQ(db.FindModel("S1", 1)->lineage_json, "");
+  EXPECT_EQ(db.ActiveModel("S1")->version, 1);
 }
 
 // --- actuators and trials ----------------------------------------------------------
@@ -570,12 +618,15 @@ TEST(Database, RefusesANewerSchemaVersion) {
   const std::string path = dir.File("future.db");
   { Database::Open(path); }
   {
-    RawConnection(path).Exec(
-        "INSERT INTO schema_version VALUES (2, 0, '9.9.9', 'from the future')");
+    const std::string future = std::to_string(Database::kSchemaVersion + 1);
+    RawConnection(path).Exec("INSERT INTO schema_version VALUES (" + future +
+                             ", 0, '9.9.9', 'from the future')");
   }
   const std::string error = OpenError(path);
   EXPECT_NE(error.find(path), std::string::npos) << error;
-  EXPECT_NE(error.find("schema version 2"), std::string::npos) << error;
+  EXPECT_NE(error.find("schema version " + std::to_string(Database::kSchemaVersion + 1)),
+            std::string::npos)
+      << error;
   EXPECT_NE(error.find("newer"), std::string::npos) << error;
 }
 

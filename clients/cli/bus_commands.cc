@@ -1,5 +1,5 @@
 // Low-level bus commands: `flexid rpc METHOD [ARGS_JSON]` sends any request to flexidd and
-// prints the reply; `flexid watch` prints live predictions and alerts.
+// prints the reply; `flexid watch` prints live predictions and alerts, then a summary.
 #include <cmath>
 #include <flexid/alert_t.hpp>
 #include <flexid/prediction_t.hpp>
@@ -45,15 +45,30 @@ struct WatchArgs {
   double every_s = 1.0;
 };
 
+// What one actuator showed while watched: the live residual and the alerts by kind.
+struct WatchTally {
+  int64_t predictions = 0;
+  double residual_sum_squares_mm2 = 0.0;
+  std::map<int32_t, int64_t> versions;  // model version -> predictions made with it
+  std::map<std::string, int64_t> alerts;
+};
+
 struct Watcher {
   WatchArgs args;
   std::map<std::string, int64_t> last_printed;  // per actuator, message time
+  std::map<std::string, WatchTally> tally;      // per actuator
   static void OnPrediction(const lcm::ReceiveBuffer* rbuf, const std::string&, Watcher* self) {
     flexid::prediction_t p;
     if (!wire::WellFormed(rbuf->data, rbuf->data_size, wire::kPrediction) ||
         p.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) <= 0)
       return;
     if (!self->args.actuator.empty() && p.actuator_id != self->args.actuator) return;
+    if (std::isfinite(p.residual_mm)) {
+      WatchTally& t = self->tally[p.actuator_id];
+      ++t.predictions;
+      t.residual_sum_squares_mm2 += p.residual_mm * p.residual_mm;
+      ++t.versions[p.model_version];
+    }
     int64_t& last = self->last_printed[p.actuator_id];
     if (last != 0 && p.utime - last < static_cast<int64_t>(self->args.every_s * 1e6)) return;
     last = p.utime;
@@ -69,7 +84,29 @@ struct Watcher {
         a.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) <= 0)
       return;
     if (!self->args.actuator.empty() && a.actuator_id != self->args.actuator) return;
+    ++self->tally[a.actuator_id].alerts[a.kind];
     std::cout << "ALERT " << a.actuator_id << " " << a.kind << ": " << a.text << "\n";
+  }
+  // One line per actuator: "summary S1: 4400 predictions (model v2), residual RMS 0.0199 mm;
+  // alerts: none".
+  void PrintSummary() const {
+    for (const auto& [id, t] : tally) {
+      std::cout << "summary " << id << ": " << t.predictions << " predictions";
+      if (t.predictions > 0) {
+        std::string versions;
+        for (const auto& [version, count] : t.versions)
+          versions += (versions.empty() ? "v" : ", v") + std::to_string(version);
+        std::cout << " (model " << versions << "), residual RMS "
+                  << FormatNumber(
+                         std::sqrt(t.residual_sum_squares_mm2 / static_cast<double>(t.predictions)),
+                         3)
+                  << " mm";
+      }
+      std::string alerts;
+      for (const auto& [kind, count] : t.alerts)
+        alerts += (alerts.empty() ? "" : ", ") + std::to_string(count) + " " + kind;
+      std::cout << "; alerts: " << (alerts.empty() ? "none" : alerts) << "\n";
+    }
   }
 };
 
@@ -78,7 +115,7 @@ void RunWatch(const WatchArgs& args) {
     throw UsageError("--seconds must be > 0 and --every >= 0");
   lcm::LCM lcm(LcmUrl());
   if (!lcm.good()) throw OperationError("cannot join the LCM bus at " + LcmUrl());
-  Watcher watcher{args, {}};
+  Watcher watcher{args, {}, {}};
   const bus::Channels channels = BusChannels();
   lcm.subscribeFunction(channels.AllPredictions(), &Watcher::OnPrediction, &watcher)
       ->setQueueCapacity(1 << 16);
@@ -87,6 +124,7 @@ void RunWatch(const WatchArgs& args) {
   const auto end = std::chrono::steady_clock::now() +
                    std::chrono::milliseconds(static_cast<int64_t>(args.seconds * 1000));
   while (std::chrono::steady_clock::now() < end) lcm.handleTimeout(50);
+  watcher.PrintSummary();
 }
 
 }  // namespace
@@ -113,7 +151,10 @@ void RegisterBusCommands(CLI::App& app) {
   follow->add_option(
       "--every", watch->every_s,
       "At most one prediction line per actuator per this many seconds of message time (default 1)");
-  follow->footer("Example:\n  flexid watch --seconds 30 --actuator S1");
+  follow->footer(
+      "At the end, one summary line per actuator: predictions seen, the model versions that\n"
+      "made them, the live residual's RMS and the alerts by kind.\n"
+      "Example:\n  flexid watch --seconds 30 --actuator S1");
   follow->callback([watch] { RunWatch(*watch); });
 }
 

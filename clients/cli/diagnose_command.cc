@@ -48,6 +48,7 @@ struct DiagnoseArgs {
   std::vector<int64_t> trials;  // empty: the latest finished one (or --recent)
   int recent = 0;               // the actuator's latest K finished trials
   bool no_model = false;
+  bool propose = false;  // flexidd stores the augmented model as a new inactive version
   double timeout_s = 300.0;
 };
 
@@ -312,6 +313,7 @@ void RunStoredHere(const DiagnoseArgs& args) {
 // "trial" (or "trials") and "model_version".
 void RunInDaemon(const DiagnoseArgs& args) {
   json request = {{"actuator", args.actuator}, {"use_model", !args.no_model}};
+  if (args.propose) request["propose"] = true;
   if (args.trials.size() == 1) request["trial"] = args.trials.front();
   if (args.trials.size() > 1) request["trials"] = args.trials;
   if (args.recent > 0) request["recent"] = args.recent;
@@ -335,6 +337,21 @@ void RunInDaemon(const DiagnoseArgs& args) {
   if (diagnosed.empty()) diagnosed.push_back(reply.value("trial", int64_t{0}));
   PrintHuman(TrialWords(diagnosed) + " of " + args.actuator,
              version != 0 ? args.actuator + " model v" + std::to_string(version) : "", reply);
+  if (!args.propose) return;
+  const json proposed = reply.value("proposed_version", json());
+  if (!proposed.is_number_integer()) {
+    std::cout << "\nNothing proposed: the diagnosis named no effect.\n";
+    return;
+  }
+  const std::string v = std::to_string(proposed.get<int64_t>());
+  if (reply.value("adopted", false))
+    std::cout << "\nProposed and adopted as " << args.actuator << " model v" << v << ".\n";
+  else
+    std::cout << "\nProposed as " << args.actuator << " model v" << v
+              << " (inactive).\n  compare:  flexid models diff --actuator " << args.actuator << " "
+              << (version != 0 ? std::to_string(version) : std::string("active")) << " " << v
+              << "\n  activate: flexid models activate --actuator " << args.actuator << " " << v
+              << "\n";
 }
 
 void RunDiagnose(const DiagnoseArgs& args) {
@@ -367,6 +384,11 @@ void RunDiagnose(const DiagnoseArgs& args) {
                      " trials in one diagnosis");
   if (!args.model_path.empty() && args.no_model)
     throw UsageError("--model and --no-model exclude each other");
+  if (args.propose && (args.actuator.empty() || Offline() || !args.report_path.empty() ||
+                       !args.out_path.empty() || !args.model_path.empty()))
+    throw UsageError(
+        "--propose asks flexidd to store the augmented model: it needs --actuator, and "
+        "excludes --db, --report, --out and --model");
   if (!(args.timeout_s > 0.0) || !std::isfinite(args.timeout_s))
     throw UsageError("--timeout: expected a positive number of seconds");
   const bool here = Offline() || !args.report_path.empty() || !args.out_path.empty() ||
@@ -407,6 +429,9 @@ void RegisterDiagnoseCommand(CLI::App& app) {
   cmd->add_flag("--no-model", args->no_model,
                 "Stored trial: identify the baseline on the trial instead of using the "
                 "actuator's active model");
+  cmd->add_flag("--propose", args->propose,
+                "Stored trials in flexidd: store the model with the findings as a new, inactive "
+                "version with its lineage (activate it with `flexid models activate`)");
   cmd->add_option("--timeout", args->timeout_s,
                   "Seconds to wait for flexidd's diagnosis (default 300)");
   cmd->footer(
@@ -420,6 +445,7 @@ void RegisterDiagnoseCommand(CLI::App& app) {
       "  flexid diagnose --actuator S1 --recent 3\n"
       "  flexid diagnose run.csv --json\n"
       "  flexid diagnose --actuator S1 --trial 4\n"
+      "  flexid diagnose --actuator S1 --trial 4 --propose\n"
       "  flexid --db var/flexid.db diagnose --trial 4 --report trial4.html");
   cmd->callback([args] { RunDiagnose(*args); });
 }

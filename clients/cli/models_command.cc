@@ -52,7 +52,7 @@ void RunList(const ListArgs& args) {
   std::cout << args.actuator << ": " << list.size() << (list.size() == 1 ? " model" : " models")
             << (active ? " (v" + std::to_string(active) + " active)" : " (none active)") << "\n";
   Table table({"version", "created (UTC)", "active", "trials", "levels V", "fit %", "RMSE mm",
-               "samples", "flexid"});
+               "samples", "flexid", "proposed from"});
   for (const json& m : list) {
     const json fit = m.value("fit", json());
     const double samples = NumberIn(fit, "samples");
@@ -62,7 +62,8 @@ void RunList(const ListArgs& args) {
                   JoinNumbers(fit.is_object() ? fit.value("levels_V", json()) : json(), ","),
                   Cell(NumberIn(fit, "fit_percent")), Cell(NumberIn(fit, "rmse_mm"), 3),
                   std::isfinite(samples) ? std::to_string(static_cast<int64_t>(samples)) : "-",
-                  m.value("flexid_version", std::string("-"))});
+                  m.value("flexid_version", std::string("-")),
+                  LineageShort(m).empty() ? "-" : LineageShort(m)});
   }
   table.Print(std::cout);
 }

@@ -92,4 +92,60 @@ std::vector<Local> LocalsOf(const model::ModelDocument& doc) {
   return out;
 }
 
+namespace {
+
+const json* LineageIn(const json& summary) {
+  if (!summary.is_object()) return nullptr;
+  const auto it = summary.find("lineage");
+  return it != summary.end() && it->is_object() ? &*it : nullptr;
+}
+
+std::string EffectNames(const json& lineage) {
+  std::string names;
+  const json effects = lineage.value("effects", json::array());
+  for (const json& e : effects)
+    if (e.is_object()) names += (names.empty() ? "" : ", ") + e.value("effect", std::string("?"));
+  return names;
+}
+
+std::string Parent(const json& lineage) {
+  const int64_t parent = lineage.value("parent_version", int64_t{0});
+  return parent > 0 ? "v" + std::to_string(parent) : std::string("an identified baseline");
+}
+
+}  // namespace
+
+std::string LineageShort(const json& summary) {
+  const json* lineage = LineageIn(summary);
+  if (!lineage) return "";
+  return Parent(*lineage) + " + " + EffectNames(*lineage) + ", " +
+         Cell(NumberIn(*lineage, "heldout_gain"), 2) + "x";
+}
+
+std::string LineageLong(const json& summary) {
+  const json* lineage = LineageIn(summary);
+  if (!lineage) return "";
+  std::string effects;
+  const json effect_list = lineage->value("effects", json::array());
+  for (const json& e : effect_list) {
+    if (!e.is_object()) continue;
+    std::string params;
+    const json params_json = e.value("params", json::object());
+    if (!params_json.is_object()) continue;
+    for (const auto& [name, p] : params_json.items()) {
+      params += (params.empty() ? "" : ", ") + name + " " + Cell(NumberIn(p, "value"), 3);
+      const double half_width = NumberIn(p, "half_width_95");
+      params += std::isfinite(half_width) ? " +- " + Cell(half_width, 2) : " (undetermined)";
+    }
+    effects +=
+        (effects.empty() ? "" : "; ") + e.value("effect", std::string("?")) + " (" + params + ")";
+  }
+  return "proposed on " + Parent(*lineage) + " by " +
+         lineage->value("proposed_by", std::string("?")) + " from trials " +
+         JoinNumbers(lineage->value("trials", json())) + ": " + effects + "; held-out RMSE " +
+         Cell(NumberIn(*lineage, "heldout_rmse_before_mm"), 3) + " -> " +
+         Cell(NumberIn(*lineage, "heldout_rmse_after_mm"), 3) + " mm, " +
+         Cell(NumberIn(*lineage, "heldout_gain"), 2) + " times smaller";
+}
+
 }  // namespace flexid::cli::models

@@ -46,6 +46,13 @@ int32_t ParseVersion(const std::string& text, const std::string& what);
 void RequireActuator(const std::string& actuator);
 
 // One stored model: Query("model") with the summary and the parsed document.
+// A proposed version's lineage (the "lineage" of a models reply, proposal.h in daemon/), in
+// words; "" for an identified version. Short, for a table: "v4 + back_relaxation, 4.0x".
+// Long: "proposed on v4 by diagnose from trial 12: back_relaxation (fraction 0.21 +- 0.03,
+// tau_s 31 +- 4); held-out RMSE 0.085 -> 0.021 mm, 4.0 times smaller".
+std::string LineageShort(const json& summary);
+std::string LineageLong(const json& summary);
+
 struct StoredVersion {
   json summary;  // ModelSummaryJson, without "model"
   json document;

@@ -218,6 +218,14 @@ json StepComparison(const model::TsModel& a, const model::TsModel& b, double ste
 json DiffJson(const Side& a, const Side& b) {
   const std::vector<Local> la = LocalsOf(a.doc), lb = LocalsOf(b.doc);
   json out = {{"a", SideJson(a)}, {"b", SideJson(b)}};
+  for (const auto& [key, side] : {std::pair{"a", &a}, std::pair{"b", &b}}) {
+    json augmentations = json::array();
+    for (const model::Augmentation& aug : side->doc.augmentations)
+      augmentations.push_back({{"effect", aug.effect}, {"params", aug.params}});
+    out[key]["augmentations"] = augmentations;
+    out[key]["lineage"] =
+        side->summary.is_object() ? side->summary.value("lineage", json()) : json();
+  }
   if (a.fit.is_object() && b.fit.is_object())
     out["fit_change"] = {
         {"fit_percent", Number(NumberIn(b.fit, "fit_percent") - NumberIn(a.fit, "fit_percent"))},
@@ -290,6 +298,14 @@ std::string PercentChange(double a, double b) {
 
 void PrintDiff(const Side& a, const Side& b, const json& d) {
   std::cout << a.title << " -> " << b.title << "\n";
+  for (const Side* side : {&a, &b}) {
+    if (const std::string lineage = LineageLong(side->summary); !lineage.empty())
+      std::cout << side->label << ": " << lineage << "\n";
+    std::string effects;
+    for (const model::Augmentation& aug : side->doc.augmentations)
+      effects += (effects.empty() ? "" : ", ") + aug.effect;
+    std::cout << side->label << " augmentations: " << (effects.empty() ? "none" : effects) << "\n";
+  }
   const std::string la = a.label == b.label ? "A: " + a.label : a.label;
   const std::string lb = a.label == b.label ? "B: " + b.label : b.label;
   const json& ja = d["a"];

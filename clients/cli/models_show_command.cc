@@ -27,9 +27,12 @@ struct ShowArgs {
 void PrintSummary(const StoredVersion& v) {
   const json& s = v.summary;
   std::cout << v.name << (s.value("active", false) ? " (active)" : " (not active)") << "\n";
+  const std::string lineage = LineageLong(s);
   std::cout << "  created " << IsoUtc(s.value("created_utime", int64_t{0})) << " by flexid "
-            << s.value("flexid_version", std::string("?")) << ", identified from trials "
+            << s.value("flexid_version", std::string("?"))
+            << (lineage.empty() ? ", identified from trials " : ", diagnosed trials ")
             << JoinNumbers(s.value("trials", json())) << "\n";
+  if (!lineage.empty()) std::cout << "  " << lineage << "\n";
   const json fit = s.value("fit", json());
   if (fit.is_object())
     std::cout << "  fit " << Cell(NumberIn(fit, "fit_percent")) << " %, RMSE "

@@ -10,6 +10,16 @@
 #include "model/core/simulate.h"
 
 namespace flexid::rig {
+namespace {
+
+// Throws model::InputError unless `count` samples from start_utime keep utime well within
+// int64_t.
+void CheckStartUtime(int64_t start_utime, size_t count, double rate_Hz) {
+  if (static_cast<double>(start_utime) + static_cast<double>(count) * 1e6 / rate_Hz > 9e18)
+    throw model::InputError("the start utime is too large for the protocol");
+}
+
+}  // namespace
 
 bool RigOptions::IsValid(std::string* error) const {
   if (!(rate_Hz > 0.0 && rate_Hz <= kMaxRate_Hz)) {
@@ -53,9 +63,7 @@ Rig::Rig(const model::TsModel& model, Protocol protocol,
     throw model::InputError(text.str());
   }
   const auto n = static_cast<size_t>(std::max(1.0, count));
-  if (static_cast<double>(options_.start_utime) + static_cast<double>(n) * 1e6 / options_.rate_Hz >
-      9e18)
-    throw model::InputError("the start utime is too large for the protocol");
+  CheckStartUtime(options_.start_utime, n, options_.rate_Hz);
 
   voltage_V_.resize(n);
   std::vector<double> drive_V(n);
@@ -73,6 +81,13 @@ Rig::Rig(const model::TsModel& model, Protocol protocol,
          << " s (is the model stable?)";
     throw std::runtime_error(text.str());
   }
+}
+
+void Rig::SetStartUtime(int64_t start_utime) {
+  if (next_ > 0) throw std::logic_error("Rig::SetStartUtime after the first sample");
+  if (start_utime < 0) throw model::InputError("the start utime must be >= 0");
+  CheckStartUtime(start_utime, voltage_V_.size(), options_.rate_Hz);
+  options_.start_utime = start_utime;
 }
 
 double Rig::duration_s() const { return static_cast<double>(sample_count()) / options_.rate_Hz; }

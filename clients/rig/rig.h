@@ -77,6 +77,11 @@ class Rig {
   const Protocol& protocol() const { return protocol_; }
   const RigOptions& options() const { return options_; }
 
+  // Moves the run in message time: sample 0 at start_utime (flexid-rig learns where to
+  // start from flexidd only after its input is checked). Before the first Next() only;
+  // throws model::InputError for a start the constructor would refuse.
+  void SetStartUtime(int64_t start_utime);
+
   // Writes the next sample; false after the last one.
   bool Next(RigSample* sample);
 

@@ -18,6 +18,13 @@
 // to message time. PREFIX is flexidd's channel_prefix, given with --channel-prefix (default
 // FLEXID).
 //
+// Message time: the first sample is at --start-utime; without it, at the wall clock or, if
+// later, just after the latest sample flexidd has seen (its status reply's latest_utime,
+// asked for on the bus with a 0.5 s timeout). So a run after an accelerated one continues
+// its message time instead of going back, which flexidd would take for a clock jump
+// (runner.h, ContinuedStartUtime). When no flexidd answers, the wall clock; a line on
+// stderr says so, and another when the start moved after flexidd's latest sample.
+//
 // Several actuators: --actuator may be repeated or hold a comma-separated list. Every
 // actuator plays the same protocol on its own channels, with its own noise stream (seed +
 // i for the i-th actuator, from 0) and its own trial start and stop; all advance together
@@ -37,6 +44,7 @@
 // run failed (bus, unstable model, a message not sent, the file not written, interrupted by
 // SIGINT/SIGTERM), 2 bad usage or bad input.
 #include <signal.h>
+#include <unistd.h>
 
 #include <CLI/CLI.hpp>
 #include <atomic>
@@ -50,6 +58,7 @@
 #include <iostream>
 #include <lcm/lcm-cpp.hpp>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
 #include <vector>
@@ -57,6 +66,7 @@
 #include "bus/channels.h"
 #include "bus/clock.h"
 #include "bus/ids.h"
+#include "bus/rpc_client.h"
 #include "bus/sample_publisher.h"
 #include "clients/cli/command.h"
 #include "clients/rig/effects.h"
@@ -219,6 +229,53 @@ int WriteRecording(const RigArgs& args) {
   return 0;
 }
 
+// How long flexid-rig waits for flexidd's status before it starts at the wall clock: a
+// flexidd on the bus answers within milliseconds.
+constexpr auto kStatusTimeout = std::chrono::milliseconds(500);
+
+// flexidd's latest sample time from its status reply; nullopt, with a line on stderr, when
+// no flexidd answers or the reply carries no usable time (null: flexidd has seen none).
+std::optional<int64_t> LatestUtimeOnTheBus(lcm::LCM& lcm, const bus::Channels& channels,
+                                           const RigArgs& args) {
+  const std::string client_id =
+      "rig-" + std::to_string(getpid()) + "-" + bus::RandomRequestId().substr(0, 8);
+  bus::RpcClient client(lcm, channels, client_id);
+  const std::optional<bus::RpcReply> reply = client.Call("status", "{}", kStatusTimeout);
+  if (!reply) {
+    std::cerr << "flexid-rig: no flexidd answered status within "
+              << std::chrono::duration<double>(kStatusTimeout).count()
+              << " s: message time starts at the wall clock [url: " << args.lcm_url << "]\n";
+    return std::nullopt;
+  }
+  const nlohmann::json status = nlohmann::json::parse(reply->message.result_json, nullptr, false);
+  if (reply->message.status != flexid::rpc_reply_t::kOk || !status.is_object() ||
+      !status.contains("latest_utime")) {
+    std::cerr << "flexid-rig: flexidd's status reply carries no latest_utime: message time "
+                 "starts at the wall clock\n";
+    return std::nullopt;
+  }
+  const nlohmann::json& latest = status["latest_utime"];
+  if (latest.is_null()) return std::nullopt;  // flexidd has seen no sample yet
+  if (!latest.is_number_integer() || latest.get<int64_t>() < 0) {
+    std::cerr << "flexid-rig: flexidd's status reply has latest_utime " << latest.dump()
+              << ", not an integer >= 0: message time starts at the wall clock\n";
+    return std::nullopt;
+  }
+  return latest.get<int64_t>();
+}
+
+// Where message time starts without --start-utime: after the latest sample flexidd has
+// seen, or at the wall clock (ContinuedStartUtime in runner.h says why).
+int64_t StartUtimeOnTheBus(lcm::LCM& lcm, const bus::Channels& channels, const RigArgs& args) {
+  const std::optional<int64_t> latest_utime = LatestUtimeOnTheBus(lcm, channels, args);
+  const int64_t wall_utime = bus::WallClockUtime();
+  const int64_t start_utime = ContinuedStartUtime(wall_utime, latest_utime, args.rate_Hz);
+  if (start_utime != wall_utime)
+    std::cerr << "flexid-rig: message time continues after flexidd's latest sample [latest_utime: "
+              << *latest_utime << ", start_utime: " << start_utime << "]\n";
+  return start_utime;
+}
+
 // Returns the exit code (0 or 1); throws UsageError / model::InputError for bad input.
 int RunRigCommand(const RigArgs& args) {
   if (!args.out_path.empty()) return WriteRecording(args);
@@ -233,6 +290,7 @@ int RunRigCommand(const RigArgs& args) {
   const model::TsModel model = LoadModel(args.model_path);
   RigOptions options;
   options.rate_Hz = args.rate_Hz;
+  // Without --start-utime, the wall clock until flexidd is asked (StartUtimeOnTheBus).
   options.start_utime = args.start_utime_given ? args.start_utime : bus::WallClockUtime();
   options.noise_mm = args.noise_mm;
   options.seed = args.seed;
@@ -255,6 +313,15 @@ int RunRigCommand(const RigArgs& args) {
   lcm::LCM lcm(args.lcm_url);
   if (!lcm.good()) throw OperationError("cannot open the LCM bus [url: " + args.lcm_url + "]");
   const bus::Channels channels(args.channel_prefix);
+  if (!args.start_utime_given) {
+    const int64_t start_utime = StartUtimeOnTheBus(lcm, channels, args);
+    try {
+      for (Rig& rig : rigs) rig.SetStartUtime(start_utime);
+    } catch (const model::InputError& e) {  // not the user's input: flexidd's time
+      throw OperationError(std::string(e.what()) + " [start_utime: " + std::to_string(start_utime) +
+                           ", after flexidd's latest sample; give --start-utime]");
+    }
+  }
   std::vector<std::unique_ptr<LcmSink>> sinks;
   std::vector<ActuatorOnBus> actuators;
   for (size_t i = 0; i < rigs.size(); ++i) {
@@ -339,7 +406,9 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--seed", args.seed, "Seed of the noise generator")->capture_default_str();
   CLI::Option* start_utime = app.add_option(
-      "--start-utime", args.start_utime, "utime of the first sample, microseconds (default: now)");
+      "--start-utime", args.start_utime,
+      "utime of the first sample, microseconds (default: now, or just after the latest sample "
+      "flexidd has seen if that is later)");
   CLI::Option* trial_control = app.add_flag("--trial-control", args.trial_control,
                                             "Publish trial start and stop on PREFIX/TRIAL");
   CLI::Option* key_file = app.add_option(

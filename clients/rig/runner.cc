@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
+#include <limits>
 #include <sstream>
 #include <stdexcept>
 #include <thread>
@@ -25,6 +27,16 @@ bool WaitUntil(Clock::time_point when, const std::atomic<bool>* stop) {
 }
 
 }  // namespace
+
+int64_t ContinuedStartUtime(int64_t wall_utime, std::optional<int64_t> latest_utime,
+                            double rate_Hz) {
+  if (!latest_utime) return wall_utime;
+  const auto gap_us = static_cast<int64_t>(std::ceil(std::max(kRestartGap_s, 1.0 / rate_Hz) * 1e6));
+  const int64_t after_us = *latest_utime > std::numeric_limits<int64_t>::max() - gap_us
+                               ? std::numeric_limits<int64_t>::max()
+                               : *latest_utime + gap_us;
+  return std::max(wall_utime, after_us);
+}
 
 RunSummary RunRig(Rig& rig, BusSink& sink, const RunOptions& options,
                   const std::atomic<bool>* stop) {

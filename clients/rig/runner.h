@@ -18,6 +18,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -69,6 +70,18 @@ struct ActuatorOnBus {
 // utime (MakeActuatorRigs's do); throws std::invalid_argument otherwise or if there are none.
 RunSummary RunRigs(const std::vector<ActuatorOnBus>& actuators, const RunOptions& options,
                    const std::atomic<bool>* stop = nullptr);
+
+// Where a run's message time starts without --start-utime: the wall clock, or just after
+// the latest sample flexidd has seen (its status reply's latest_utime, nullopt when none
+// is known) if that is later. A run at --speed 200 ends far ahead of the wall clock (440 s
+// of message time in 2.2 s); the next run starting at the wall clock would go back in
+// message time, and flexidd would take it for a source clock jump (daemon/health.h).
+// "Just after" is kRestartGap_s, or one sample period at rates below 1 Hz: after the
+// previous run's trial stop (one period after its last sample), so the trials do not
+// touch. Saturates at INT64_MAX rather than overflow (the rig then refuses the start).
+inline constexpr double kRestartGap_s = 1.0;
+int64_t ContinuedStartUtime(int64_t wall_utime, std::optional<int64_t> latest_utime,
+                            double rate_Hz);
 
 // One line: "published 100 samples (100 deflection, 10 voltage, 2 trial-control
 // messages) covering 10 s of message time in 0.0021 s, final utime 1700000009900000";

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <stdexcept>
 #include <string>
@@ -16,12 +17,39 @@ namespace {
 // The catalogue
 // -----------------------------------------------------------------------------------------
 
+// Where a parameter has a physical meaning: [lower, upper], either end open.
+struct Range {
+  double lower = -std::numeric_limits<double>::infinity();
+  double upper = std::numeric_limits<double>::infinity();
+  bool lower_open = false, upper_open = false;
+  bool Holds(double v) const {
+    return (lower_open ? v > lower : v >= lower) && (upper_open ? v < upper : v <= upper);
+  }
+  std::string Text() const;
+};
+constexpr double kNoLimit = std::numeric_limits<double>::infinity();
+const Range kAny{};
+const Range kPositive{0.0, kNoLimit, true, true};
+const Range kNonNegative{0.0, kNoLimit, false, true};
+const Range kFraction{0.0, 1.0, false, true};  // [0, 1)
+
+std::string Range::Text() const {
+  auto number = [](double v) {
+    char text[32];
+    std::snprintf(text, sizeof text, "%g", v);
+    return std::string(text);
+  };
+  if (upper == kNoLimit) return std::string(lower_open ? "> " : ">= ") + number(lower);
+  return (lower_open ? "(" : "[") + number(lower) + ", " + number(upper) + (upper_open ? ")" : "]");
+}
+
 struct EffectInfo {
   EffectKind kind;
   const char* name;
   const char* description;
   std::vector<std::string> params;
   bool input_side;                   // changes the voltage the model is driven with
+  std::vector<Range> ranges;         // of each parameter, where its model means something
   const char* scale_name = nullptr;  // Effect::scale in a model file, if it has one
 };
 
@@ -35,7 +63,8 @@ const std::vector<EffectInfo>& Catalogue() {
        "negative after them, with one slow time constant. Model: y - fraction * s, "
        "tau_s s' = y - s (an extra slow pole-zero pair, gain scaled by 1 - fraction).",
        {"fraction", "tau_s"},
-       false},
+       false,
+       {kFraction, kPositive}},
       {EffectKind::kCreep,
        "creep",
        "Under a sustained voltage the beam keeps bending slowly beyond the model's "
@@ -43,7 +72,8 @@ const std::vector<EffectInfo>& Catalogue() {
        "grows during holds with one slow time constant, positive after them. Model: "
        "y + fraction * s, tau_s s' = y - s.",
        {"fraction", "tau_s"},
-       false},
+       false,
+       {kNonNegative, kPositive}},
       {EffectKind::kCycleDegradation,
        "cycle_degradation",
        "Repeated actuation degrades the gel and the electrode interface (ion depletion, "
@@ -52,6 +82,7 @@ const std::vector<EffectInfo>& Catalogue() {
        "Model: drive voltage u (1 - loss)^(Q(t) / Q_end), Q = integral |u| dt.",
        {"loss"},
        true,
+       {kFraction},
        "charge_Vs"},
       {EffectKind::kHysteresis,
        "hysteresis",
@@ -61,7 +92,8 @@ const std::vector<EffectInfo>& Catalogue() {
        "reversal, persisting in holds and at rest. Model: Dahl's friction model on the "
        "model's deflection y: dh/dy = (sign(dy) - h) / reach_mm, output y - width_mm h.",
        {"width_mm", "reach_mm"},
-       false},
+       false,
+       {kNonNegative, kPositive}},
       {EffectKind::kElectrolysisSaturation,
        "electrolysis_saturation",
        "Above the electrolyte's decomposition voltage the extra voltage drives water "
@@ -70,7 +102,8 @@ const std::vector<EffectInfo>& Catalogue() {
        "proportional to the voltage above the onset. Model: |u| above onset_V scaled by "
        "slope.",
        {"onset_V", "slope"},
-       true},
+       true,
+       {kNonNegative, Range{0.0, 1.0}}},
       {EffectKind::kDeadZone,
        "dead_zone",
        "Below an onset voltage the electrochemistry does not start (or an electrostatic "
@@ -78,7 +111,8 @@ const std::vector<EffectInfo>& Catalogue() {
        "at every level is lower by the same voltage's worth, relatively most at low "
        "levels. Model: drive sign(u) max(|u| - threshold_V, 0).",
        {"threshold_V"},
-       true},
+       true,
+       {kNonNegative}},
       {EffectKind::kSensorDrift,
        "sensor_drift",
        "The displacement sensor's zero moves (thermal warm-up of the sensor or the bath, a "
@@ -88,6 +122,7 @@ const std::vector<EffectInfo>& Catalogue() {
        "of the recording.",
        {"drift_mm", "warmup_mm", "warmup_tau_s"},
        false,
+       {kAny, kAny, kPositive},
        "span_s"},
       {EffectKind::kPolarityAsymmetry,
        "polarity_asymmetry",
@@ -95,7 +130,8 @@ const std::vector<EffectInfo>& Catalogue() {
        "electrodes, different mobile ions on either side). Residual: proportional to the "
        "response during negative voltage only. Model: u < 0 driven as ratio u.",
        {"ratio"},
-       true},
+       true,
+       {kPositive}},
   };
   return catalogue;
 }
@@ -235,9 +271,8 @@ AugmentedStreamingSimulator::AugmentedStreamingSimulator(const TsModel& model,
     : simulator_(model, options), effects_(std::move(effects)), states_(effects_.size()) {
   for (const Effect& e : effects_) {
     const std::string name = EffectName(e.kind);
-    if (e.params.size() != EffectParameterNames(e.kind).size())
-      throw InputError("effect " + name + ": needs " +
-                       std::to_string(EffectParameterNames(e.kind).size()) + " parameters");
+    if (const std::string problem = EffectProblem(e); !problem.empty())
+      throw InputError("effect " + problem);
     if (EffectScaleName(e.kind) && !(e.scale > 0))
       throw InputError("effect " + name + ": a live prediction needs its " +
                        EffectScaleName(e.kind) + " (> 0; flexid diagnose writes it)");
@@ -323,6 +358,23 @@ std::vector<std::string> EffectParameterNames(EffectKind kind) { return Entry(ki
 
 const char* EffectScaleName(EffectKind kind) { return Entry(kind).scale_name; }
 
+std::string EffectProblem(const Effect& effect) {
+  const EffectInfo& info = Entry(effect.kind);
+  if (effect.params.size() != info.params.size())
+    return std::string(info.name) + " needs " + std::to_string(info.params.size()) +
+           " parameters, not " + std::to_string(effect.params.size());
+  for (size_t i = 0; i < info.params.size(); ++i) {
+    char value[32];
+    std::snprintf(value, sizeof value, "%g", effect.params[i]);
+    if (!std::isfinite(effect.params[i]) || !info.ranges[i].Holds(effect.params[i]))
+      return std::string(info.name) + ": " + info.params[i] + " must be " + info.ranges[i].Text() +
+             ", not " + value;
+  }
+  if (info.scale_name && (effect.scale < 0 || !std::isfinite(effect.scale)))
+    return std::string(info.name) + ": " + info.scale_name + " must be > 0";
+  return "";
+}
+
 Effect EffectFromAugmentation(const Augmentation& augmentation) {
   Effect effect;
   if (!ParseEffectName(augmentation.effect, &effect.kind))
@@ -343,6 +395,8 @@ Effect EffectFromAugmentation(const Augmentation& augmentation) {
       effect.scale = it->get<double>();
     }
   }
+  if (const std::string problem = EffectProblem(effect); !problem.empty())
+    throw InputError("augmentation " + problem);
   return effect;
 }
 

@@ -54,10 +54,15 @@ std::vector<std::string> EffectParameterNames(EffectKind kind);
 // cycle_degradation, "span_s" for sensor_drift); nullptr for effects without one.
 const char* EffectScaleName(EffectKind kind);
 
+// What is wrong with an effect, in words ("back_relaxation: fraction must be [0, 1), not
+// 1.3"), or "" when nothing is: its parameter count, each parameter finite and in the range
+// where its model has a physical meaning (EffectDescription), a scale that is not negative.
+std::string EffectProblem(const Effect& effect);
+
 // Model-file augmentations ({"effect": NAME, "params": {NAME: value, ...}}) and effects;
 // the scale, when the effect has one, is an optional parameter of its own name.
 // Throws InputError naming the effect and the problem (unknown effect, a missing or
-// non-finite parameter, a scale that is not > 0).
+// non-finite parameter, one out of its range (EffectProblem), a scale that is not > 0).
 Effect EffectFromAugmentation(const Augmentation& augmentation);
 Augmentation AugmentationOf(const Effect& effect);
 // Every augmentation of a model document as an effect; errors are prefixed with `source`

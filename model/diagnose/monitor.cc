@@ -30,6 +30,8 @@ constexpr double kMadLogVariance = 1.3605;
 // there), but no longer than kMaxWarmUpFactor * noise_estimation_s.
 constexpr double kMaxLogSd = 0.08;
 constexpr double kMaxWarmUpFactor = 10.0;
+// ... or until sigma_hat is below the floor by this many sd(ln sigma_hat).
+constexpr double kFloorMargin = 3.0;
 
 double Seconds(int64_t microseconds) { return static_cast<double>(microseconds) * 1e-6; }
 int64_t Microseconds(double seconds) { return std::llround(seconds * 1e6); }
@@ -123,6 +125,8 @@ bool MonitorOptions::IsValid(std::string* error) const {
   if (!finite(rest_band_V) || rest_band_V < 0.0) return fail("rest_band_V must be finite and >= 0");
   if (!finite(noise_estimation_s) || noise_estimation_s <= 0.0)
     return fail("noise_estimation_s must be finite and > 0");
+  if (!finite(sigma_floor_mm) || sigma_floor_mm <= 0.0)
+    return fail("sigma_floor_mm must be finite and > 0");
   return true;
 }
 
@@ -269,8 +273,13 @@ ResidualMonitor::ResidualMonitor(std::string actuator_id, MonitorOptions options
 }
 
 double ResidualMonitor::noise_mm() const {
-  if (options_.noise_mm > 0.0) return options_.noise_mm;
+  if (options_.noise_mm > 0.0) return Floored(options_.noise_mm);
   return calibrated_ ? sigma_mm_ : 0.0;
+}
+
+double ResidualMonitor::Floored(double sigma_mm) const {
+  // The floor first: std::max returns its first argument when the other is NaN.
+  return std::max(options_.sigma_floor_mm, sigma_mm);
 }
 
 double ResidualMonitor::lag1_autocorrelation() const { return calibrated_ ? rho_ : 0.0; }
@@ -297,6 +306,7 @@ void ResidualMonitor::RestartStatistics() {
   warmup_duration_s_ = 0;
   warmup_samples_ = warmup_blocks_ = 0;
   sigma_log_sd_ = 0;
+  warmup_below_floor_ = false;
   sum_uu_ = sum_uu1_ = samples_ = blocks_ = pairs_span_s_ = pairs_ = 0;
   calibrated_ = false;
   sigma_mm_ = rho_ = 0;
@@ -382,6 +392,14 @@ void ResidualMonitor::CloseBlock() {
       warmup_blocks_ += 1;
       for (double v : u)
         if (warmup_detrended_mm_.size() < kMaxWarmUpSamples) warmup_detrended_mm_.push_back(v);
+      if (options_.noise_mm <= 0.0 && warmup_duration_s_ >= options_.noise_estimation_s) {
+        // A warm-up that goes on for sigma_hat's sake may stop once the floor will be used
+        // anyway (a noise-free model's smooth residual would otherwise keep the detectors
+        // off for 10 noise_estimation_s).
+        UpdateRho();
+        warmup_below_floor_ =
+            SigmaEstimate() * std::exp(kFloorMargin * SigmaLogSd()) < options_.sigma_floor_mm;
+      }
     } else {
       UpdateRho();
       UpdateRunThreshold();
@@ -429,8 +447,23 @@ double ResidualMonitor::SigmaLogSd() const {
   return std::sqrt(kMadLogVariance * (1 + rho_ * rho_) / ((1 - rho_ * rho_) * n));
 }
 
+double ResidualMonitor::SigmaEstimate() const {
+  if (warmup_detrended_mm_.empty()) return NAN;
+  // Removing a line from a block of n AR(1) samples removes about 2 kappa sigma^2 of
+  // their sum of squares (the mean and slope each take the variance of n / kappa
+  // independent samples), so the detrended scale is low by sqrt(1 - 2 kappa B / N).
+  const double kappa = (1.0 + rho_) / (1.0 - rho_);
+  const double kept = std::max(0.5, 1.0 - 2.0 * kappa * warmup_blocks_ / warmup_samples_);
+  const double sigma_mm = RobustScale(warmup_detrended_mm_) / std::sqrt(kept);
+  if (sigma_mm > 0.0) return sigma_mm;
+  // A quantised residual (most values the same: MAD 0): the RMS, then the floor.
+  double sum = 0;
+  for (double v : warmup_detrended_mm_) sum += v * v;
+  return std::sqrt(sum / static_cast<double>(warmup_detrended_mm_.size()));
+}
+
 bool ResidualMonitor::WarmUpSufficient() {
-  if (options_.noise_mm > 0.0) return true;
+  if (options_.noise_mm > 0.0 || warmup_below_floor_) return true;
   UpdateRho();
   return SigmaLogSd() <= kMaxLogSd ||
          warmup_duration_s_ >= kMaxWarmUpFactor * options_.noise_estimation_s;
@@ -438,23 +471,16 @@ bool ResidualMonitor::WarmUpSufficient() {
 
 void ResidualMonitor::FinishWarmUp(int64_t utime, std::vector<Alert>* alerts) {
   const bool estimate = options_.noise_mm <= 0.0;
+  double estimate_mm = 0.0;  // the residual's own scale, before the floor
+  bool floored = false;      // ... below it: sigma is the floor
   UpdateRho();
   if (estimate) {
-    // Removing a line from a block of n AR(1) samples removes about 2 kappa sigma^2 of
-    // their sum of squares (the mean and slope each take the variance of n / kappa
-    // independent samples), so the detrended scale is low by sqrt(1 - 2 kappa B / N).
-    const double kappa = (1.0 + rho_) / (1.0 - rho_);
-    const double kept = std::max(0.5, 1.0 - 2.0 * kappa * warmup_blocks_ / warmup_samples_);
-    sigma_mm_ = RobustScale(warmup_detrended_mm_) / std::sqrt(kept);
-    if (!(sigma_mm_ > 0.0)) {  // quantised residual: fall back to the RMS, then a floor
-      double sum = 0;
-      for (double v : warmup_detrended_mm_) sum += v * v;
-      sigma_mm_ = std::sqrt(sum / static_cast<double>(warmup_detrended_mm_.size()));
-      if (!(sigma_mm_ > 0.0)) sigma_mm_ = 1e-6;
-    }
+    estimate_mm = SigmaEstimate();
+    floored = !(estimate_mm >= options_.sigma_floor_mm);
+    sigma_mm_ = Floored(estimate_mm);
     // Its uncertainty, capped where the correction stops converging (only when the warm-up
-    // ran out of time; the info alert says so).
-    sigma_log_sd_ = std::min(SigmaLogSd(), kMaxLogSd);
+    // ran out of time; the info alert says so); none when the floor is used instead.
+    sigma_log_sd_ = floored ? 0.0 : std::min(SigmaLogSd(), kMaxLogSd);
     auto line = [&](int sides) {
       return PredictiveMultiplier(
           options_.false_alarms_per_hour, sigma_log_sd_,
@@ -466,19 +492,26 @@ void ResidualMonitor::FinishWarmUp(int64_t utime, std::vector<Alert>* alerts) {
     z_back_relaxation_ = line(1);
     z_drift_ = line(2);
   } else {
-    sigma_mm_ = options_.noise_mm;
+    sigma_mm_ = Floored(options_.noise_mm);
   }
   calibrated_ = true;
   UpdateRunThreshold();
   if (estimate) {
     const double log_sd = SigmaLogSd();
+    const std::string scale =
+        floored ? Printf(
+                      "the floor sigma_floor_mm: the detrended residual's own scale, %.2g mm, "
+                      "is below it",
+                      estimate_mm)
+                : Printf("robust scale of the detrended residual, +-%.0f %%", 100 * log_sd);
     Alert alert = Make(
         "noise_estimate", warmup_first_utime_, utime, sigma_mm_, 0.0,
-        Printf("residual noise estimated from the first %.0f s of residual: sigma %.4f mm "
-               "(robust scale of the detrended residual, +-%.0f %%), lag-1 autocorrelation "
-               "%.2f; detectors active (false-alarm target %.3g per hour per kind%s)",
-               warmup_duration_s_, sigma_mm_, 100 * log_sd, rho_, options_.false_alarms_per_hour,
-               log_sd > kMaxLogSd ? "; sigma too uncertain: the rate may exceed it" : ""));
+        Printf(
+            "residual noise estimated from the first %.0f s of residual: sigma %.4f mm "
+            "(%s), lag-1 autocorrelation %.2f; detectors active (false-alarm target %.3g "
+            "per hour per kind%s)",
+            warmup_duration_s_, sigma_mm_, scale.c_str(), rho_, options_.false_alarms_per_hour,
+            !floored && log_sd > kMaxLogSd ? "; sigma too uncertain: the rate may exceed it" : ""));
     alert.severity = 0;
     alerts->push_back(std::move(alert));
   }

@@ -15,9 +15,10 @@
 // Calibration (warm-up). The statistical detectors (1-3) run once noise_estimation_s of
 // usable residual has been seen since construction or Reset (when sigma is estimated and the
 // residual is strongly autocorrelated, longer: until s below is <= 0.08, e.g. 200 s at
-// rho = 0.9, 10 Hz, but at most 10 noise_estimation_s). Usable samples are grouped in
-// blocks (contiguous, one hold, at most 60 s); at the end of a block a least-squares line is
-// removed, leaving u_k. Then
+// rho = 0.9, 10 Hz, or until sigma_hat exp(3 s) is below sigma_floor_mm (the floor is then
+// used whatever the estimate's error), but at most 10 noise_estimation_s). Usable samples
+// are grouped in blocks (contiguous, one hold, at most 60 s); at the end of a block a
+// least-squares line is removed, leaving u_k. Then
 //   rho:    r = sum u_k u_{k-1} / sum u_k^2 pooled over all blocks since Reset (updated
 //           online; u winsorised at 5 robust sd of its block). Removing a line from a block
 //           of n samples biases r by about -(2 + 3 rho)/n (measured by simulation for
@@ -39,6 +40,15 @@
 //           for s <= 0.08; s is capped there if the warm-up ran out of time). Measured over
 //           400 warm-ups: no bias in ln sigma_hat (|mean| < 0.002 at rho = 0, 0.8, 0.95),
 //           sd 0.035 (rho 0) and 0.057 (rho 0.8) against s = 0.034 and 0.072.
+//   Floor: sigma (given or estimated) is never below sigma_floor_mm (default 0.005 mm;
+//           flexidd's alerts.sigma_floor_mm), best set to the sensor's resolution. A
+//           quantised signal (most residuals round to the same value: MAD 0) or a
+//           noise-free one (a model identified from simulated data: RMSE 0) has sigma 0,
+//           and every threshold below is a multiple of sigma: at 0 they alert on rounding
+//           differences of 1e-12 mm. The floor only raises thresholds, so the false-alarm
+//           rates stay within their target; it hides effects smaller than a few floors.
+//           An estimate below the floor has no say in the thresholds, so its error s does
+//           not raise the multipliers (s is taken as 0).
 //
 // 1. back_relaxation and 2. drift: the line test. Over the usable samples of the current
 //    hold (window W = hold start + settle_s .. now, n samples) fit e = a + b t by least
@@ -96,7 +106,9 @@
 //    with the first voltage message after the gap, so no alert. magnitude_mm and
 //    threshold_mm are 0 (the size is the duration, end - start, given in the text).
 // Severity: warning; critical when |magnitude| > 5 threshold.
-// Cost: O(1) per sample, plus O(block) when a block closes (once a minute or per hold).
+// Cost: O(1) per sample, plus O(block) when a block closes (once a minute or per hold);
+// in a warm-up that goes on past noise_estimation_s, O(warm-up values) per block closed
+// (sigma_hat against the floor).
 // The multipliers are solved at the end of the warm-up (the slowest call: 5 ms at rho = 0,
 // 15 ms at rho = 0.98, 500 Hz, including sigma from 60,000 values) and again only when rho
 // moves by > 0.01 or the sample rate by > 5 % (RunTestMultiplier: 0.4-3 ms).
@@ -118,6 +130,7 @@ struct MonitorOptions {
   double dropout_s = 2.0;      // no deflection sample this long while voltage messages continue
   double rest_band_V = 0.05;   // |voltage| <= this is "no input"; also the hold tolerance
   double noise_estimation_s = 120.0;  // warm-up: usable residual needed for sigma and rho
+  double sigma_floor_mm = 0.005;      // sigma in use is never below this (header, "Floor"), > 0
   bool IsValid(std::string* error) const;
 };
 
@@ -165,7 +178,7 @@ class ResidualMonitor {
   // restart, with a settle period from the last message time. Hold and dropout tracking go on.
   void Reset();
 
-  double noise_mm() const;              // in use: given, estimated, or 0 before the estimate
+  double noise_mm() const;              // given or estimated, floored; 0 before the estimate
   double lag1_autocorrelation() const;  // rho in use (0 before the warm-up ends)
   bool calibrated() const { return calibrated_; }  // warm-up over: detectors 1-3 running
 
@@ -188,14 +201,16 @@ class ResidualMonitor {
 
   void TrackVoltage(int64_t utime, double voltage_V);
   void CloseBlock();
-  bool WarmUpSufficient();    // noise_mm given, or sigma_hat certain enough, or time is up
-  double SigmaLogSd() const;  // s of the header for the warm-up values so far
+  bool WarmUpSufficient();       // noise_mm given, or sigma_hat certain enough, or time is up
+  double SigmaLogSd() const;     // s of the header for the warm-up values so far
+  double SigmaEstimate() const;  // sigma_hat of the header from the warm-up values so far
   void FinishWarmUp(int64_t utime, std::vector<Alert>* alerts);
   void UpdateRho();
   void UpdateRunThreshold();
   void CheckLine(int64_t utime, std::vector<Alert>* alerts);
   void CheckResidual(int64_t utime, double e_mm, std::vector<Alert>* alerts);
   void RestartStatistics();
+  double Floored(double sigma_mm) const;  // max(sigma_floor_mm, sigma_mm), NaN: the floor
   Alert Make(std::string kind, int64_t start_utime, int64_t end_utime, double magnitude_mm,
              double threshold_mm, std::string text) const;
 
@@ -225,6 +240,7 @@ class ResidualMonitor {
   double warmup_duration_s_ = 0;
   double warmup_samples_ = 0, warmup_blocks_ = 0;
   double sigma_log_sd_ = 0;          // sd of ln(sigma_hat / sigma); 0 when noise_mm is given
+  bool warmup_below_floor_ = false;  // sigma_hat exp(3 s) < sigma_floor_mm (at the last block)
   double sum_uu_ = 0, sum_uu1_ = 0;  // pooled sum u_k^2 and sum u_k u_{k-1}
   double samples_ = 0, blocks_ = 0, pairs_span_s_ = 0, pairs_ = 0;
   bool calibrated_ = false;

@@ -177,7 +177,7 @@ struct GlobalIdentifyOptions {
   // pole-zero pair added (fast, and at a thirtieth, a tenth and a third of the longest
   // recording; the best of the four fits is kept), fitted on every usable sample, no
   // selection and no decimation. Its in-sample error may end slightly above the
-  // estimate's (RaiseOrder in identify_global.cc says why).
+  // estimate's (RaiseOrder in global_fit.h says why).
   // The orders, premise, realisation and dead time above are then ignored. The estimate
   // must come from IdentifyGlobalTs on the same recordings and excluded spans, and
   // outlive the call. The diagnosis asks this way whether free dynamics fall back: a
