@@ -488,14 +488,16 @@ TEST(ModelVersions, ParsesIdentifiedAndProposedNewestFirst) {
   EXPECT_EQ(ModelVersionsFromJson(json::array(), "S1", &why), json::array());
 }
 
-TEST(ModelVersions, ComputesTheGainWhenOnlyTheRmsesCame) {
+TEST(ModelVersions, FillsInTheGainAndTakesAProposalWithoutParent) {
   json reply = ModelsReply();
   reply[2]["lineage"].erase("heldout_gain");
   reply[2]["lineage"]["effects"][0]["params"]["fraction"] = 0.2;  // a bare value
+  reply[2]["lineage"]["parent_version"] = 0;                      // no model was active: a baseline
   std::string why;
   const std::optional<json> versions = ModelVersionsFromJson(reply, "S1", &why);
   ASSERT_TRUE(versions) << why;
   EXPECT_EQ((*versions)[0]["lineage"]["heldout_gain"].dump(), "4.048");
+  EXPECT_EQ((*versions)[0]["lineage"]["parent_version"], 0);
   const json& fraction = (*versions)[0]["lineage"]["effects"][0]["params"]["fraction"];
   EXPECT_DOUBLE_EQ(fraction["value"].get<double>(), 0.2);
   EXPECT_TRUE(fraction["half_width_95"].is_null());
@@ -521,7 +523,9 @@ TEST(ModelVersions, RejectsABadReplyNamingRowAndField) {
       {[](json& r) { r[2]["lineage"].erase("parent_version"); },
        "row 3 (version 4): lineage.parent_version: expected an integer"},
       {[](json& r) { r[2]["lineage"]["parent_version"] = 4; },
-       "row 3 (version 4): lineage.parent_version: expected an integer from 1 to 3 (got 4)"},
+       "row 3 (version 4): lineage.parent_version: expected an integer from 0 to 3 (got 4)"},
+      {[](json& r) { r[2]["lineage"]["parent_version"] = -1; },
+       "row 3 (version 4): lineage.parent_version: expected an integer from 0 to 3 (got -1)"},
       {[](json& r) { r[2]["lineage"]["effects"][0].erase("effect"); },
        "row 3 (version 4): lineage.effects[0].effect: expected a name of 1 to 64 characters"},
       {[](json& r) { r[2]["lineage"]["effects"] = "back_relaxation"; },
@@ -564,6 +568,16 @@ TEST(ModelVersions, TheStoreKeepsTheNewestAndSendsAnEvent) {
   LiveStore fresh;
   fresh.AddVoltage({"S1", 1, 1.0});
   EXPECT_TRUE(fresh.StateJson()["actuators"][0]["versions"].is_null());
+}
+
+TEST(ModelVersions, AProblemFromTheBusIsKeptAsOneShortLine) {
+  LiveStore store;
+  store.NoteBadReply("models of S1: flexidd answered: " + std::string(400, 'x') + "\nmore");
+  EXPECT_EQ(store.counters().bad_replies, 1);
+  const std::string kept = store.last_problem();
+  EXPECT_EQ(kept.size(), 303u);
+  EXPECT_EQ(kept.find('\n'), std::string::npos);
+  EXPECT_EQ(kept.substr(300), "...");
 }
 
 // ---------------------------------------------------------------------------------------
@@ -613,6 +627,8 @@ TEST(Listen, TheBinaryExitsWithUsageError) {
 
 class FakeDaemon {
  public:
+  static constexpr char kRefused[] = "S8";  // an actuator this flexidd does not know
+
   explicit FakeDaemon(lcm::LCM& lcm) : lcm_(lcm) {
     testing::SubscribeMember<&FakeDaemon::OnRequest>(lcm_, "FLEXID/RPC/REQUEST", this);
   }
@@ -653,6 +669,10 @@ class FakeDaemon {
       const std::string id = args["actuator"];
       ++models_requests_[id];
       reply.result_json = models_.contains(id) ? models_[id].dump() : "[]";
+      if (id == kRefused) {  // as flexidd with accept_unknown_actuators = false
+        reply.status = flexid::rpc_reply_t::kBadRequest;
+        reply.error = "unknown actuator \"" + id + "\"";
+      }
     } else if (request->method == "alerts") {
       ++alert_requests;
       reply.result_json = json::array({{{"actuator", "S9"},
@@ -849,6 +869,20 @@ TEST_F(DashboardServerTest, SamplesChartAnActuatorWithoutAModel) {
   EXPECT_EQ(s2["versions"], json::array());
   EXPECT_EQ(state["counters"]["samples"], 10);
   EXPECT_EQ(state["counters"]["bad_replies"], 0);
+}
+
+TEST_F(DashboardServerTest, AnActuatorFlexiddRefusesSaysWhyItHasNoVersions) {
+  FakeDaemon daemon(lcm_);
+  PublishSamples(FakeDaemon::kRefused, 1'000'000'000, 2.0, 0.1);
+  const json state = WaitForState([](const json& s) {
+    return !s["actuators"].empty() && s["actuators"][0]["versions_problem"].is_string() &&
+           !s["actuators"][0]["history"]["t_s"].empty();  // flexidd may answer before a batch
+  });
+  const json& s8 = state["actuators"][0];
+  EXPECT_EQ(s8["history"]["measured_mm"], json({0.1}));  // charted all the same
+  EXPECT_TRUE(s8["versions"].is_null());
+  EXPECT_EQ(s8["versions_problem"], "flexidd answered: unknown actuator \"S8\"");
+  EXPECT_EQ(state["last_problem"], "models of S8: flexidd answered: unknown actuator \"S8\"");
 }
 
 TEST_F(DashboardServerTest, VersionsAreAskedAgainWhenAModelAlertComes) {

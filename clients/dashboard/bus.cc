@@ -199,6 +199,7 @@ void BusAdapter::HandleVersions(const PendingCall& call, const flexid::rpc_reply
     }
   }
   store_.NoteBadReply("models of " + call.actuator_id + ": " + problem);
+  store_.SetModelVersionsProblem(call.actuator_id, problem);
   VersionsFailed(call.actuator_id, now);
 }
 

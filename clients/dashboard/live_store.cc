@@ -62,8 +62,19 @@ json CountersJson(const Counters& c) {
           {"bad_replies", c.bad_replies}};
 }
 
+// A problem's text as kept for the page: one line of at most 300 characters (an error
+// from the bus could be anything).
+std::string OneLine(const std::string& text) {
+  constexpr size_t kMaxChars = 300;
+  std::string out = text.substr(0, kMaxChars);
+  std::replace(out.begin(), out.end(), '\n', ' ');
+  if (text.size() > kMaxChars) out += "...";
+  return out;
+}
+
 // Keeps every other point of a buffer that no batch emptied for a long while.
-void Thin(std::vector<Point>* points) {
+template <typename Points>
+void Thin(Points* points) {
   size_t kept = 0;
   for (size_t i = 0; i < points->size(); i += 2) (*points)[kept++] = (*points)[i];
   points->resize(kept);
@@ -389,7 +400,25 @@ void LiveStore::SetModelVersions(const std::string& actuator_id, const json& ver
     if (kept.size() >= options_.max_model_versions) break;
     kept.push_back(v);
   }
-  json event = {{"actuator", actuator_id}, {"versions", kept}, {"total", versions.size()}};
+  json event = {{"actuator", actuator_id},
+                {"versions", kept},
+                {"total", versions.size()},
+                {"problem", nullptr}};
+  s->versions = event;
+  AppendEvent("versions", event);
+}
+
+void LiveStore::SetModelVersionsProblem(const std::string& actuator_id,
+                                        const std::string& problem) {
+  std::lock_guard lock(mutex_);
+  Series* s = FindOrCreate(actuator_id);
+  if (!s) return;
+  // A list flexidd gave before stays: it is the best there is.
+  if (s->versions.is_object() && s->versions["versions"].is_array()) return;
+  json event = {{"actuator", actuator_id},
+                {"versions", nullptr},
+                {"total", nullptr},
+                {"problem", OneLine(problem)}};
   s->versions = event;
   AppendEvent("versions", event);
 }
@@ -402,7 +431,7 @@ void LiveStore::CountBadMessage() {
 void LiveStore::NoteBadReply(const std::string& problem) {
   std::lock_guard lock(mutex_);
   ++counters_.bad_replies;
-  last_problem_ = problem;
+  last_problem_ = OneLine(problem);
 }
 
 void LiveStore::NotePageLoad() {
@@ -475,6 +504,7 @@ json LiveStore::StateJson() const {
          {"model", s.model},
          {"versions", s.versions.is_object() ? s.versions.at("versions") : json()},
          {"versions_total", s.versions.is_object() ? s.versions.at("total") : json()},
+         {"versions_problem", s.versions.is_object() ? s.versions.at("problem") : json()},
          {"history", ColumnsJson(s.history, all)}});
   }
   json alerts = json::array();

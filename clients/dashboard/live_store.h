@@ -33,7 +33,8 @@
 //             "memberships", "t_s": [..], "voltage_V": [..], "measured_mm": [..],
 //             "predicted_mm": [..], "residual_mm": [..]}], "counters": {..}}
 //   alert:  AlertJson(alert)       model: SummarizeModel(...)       resync: {}
-//   versions: {"actuator", "versions": ModelVersionsFromJson(...)}
+//   versions: {"actuator", "versions": ModelVersionsFromJson(...) or null, "total" (versions
+//             flexidd has), "problem": null or why flexidd gave no list}
 #pragma once
 
 #include <chrono>
@@ -185,6 +186,10 @@ class LiveStore {
   // Stores an actuator's model versions (ModelVersionsFromJson, newest first; the first
   // max_model_versions kept) and sends a "versions" event. Creates the actuator's card.
   void SetModelVersions(const std::string& actuator_id, const nlohmann::json& versions);
+  // flexidd answered the "models" request of an actuator whose list the store does not
+  // have yet with an error (e.g. an actuator it refuses): the page says so instead of
+  // "asking". A list already stored stays.
+  void SetModelVersionsProblem(const std::string& actuator_id, const std::string& problem);
   void CountBadMessage();
   // An RPC reply that failed or did not parse: counted, and `problem` (one line) kept as
   // the last problem for /api/state and /healthz.
@@ -201,7 +206,8 @@ class LiveStore {
 
   // /api/state: {"event_id", "counters", "last_problem", "actuators": [{"id", "received",
   // "samples", "model_version", "trial", "latest", "memberships", "model", "versions"
-  // (null until flexidd answered), "history": {"t_s", ...}}], "alerts" (newest first)}.
+  // (null until flexidd answered), "versions_total", "versions_problem", "history":
+  // {"t_s", ...}}], "alerts" (newest first)}.
   nlohmann::json StateJson() const;
   Counters counters() const;
   std::string last_problem() const;
@@ -220,7 +226,7 @@ class LiveStore {
     explicit Series(size_t capacity) : history(capacity) {}
     RingBuffer<Point> history;   // decimated, as sent
     std::vector<Point> pending;  // since the last batch
-    std::vector<Point> held;     // deflection samples waiting for their prediction
+    std::deque<Point> held;      // deflection samples waiting for their prediction (oldest first)
     int64_t received = 0;        // predictions accepted
     int64_t samples = 0;         // deflection samples accepted
     int64_t last_utime = 0;      // of the newest point (pending or sent)

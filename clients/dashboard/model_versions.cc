@@ -117,8 +117,9 @@ class RowReader {
     if (!lineage) return nullptr;  // identified, or a flexidd from before lineages
     if (!lineage->is_object()) Fail("lineage", "null or an object");
     const json& in = *lineage;
+    // 0: no model was active; the baseline was identified on the diagnosed trials.
     json out = {{"parent_version",
-                 Integer(in, "parent_version", "lineage.parent_version", 1, version - 1)}};
+                 Integer(in, "parent_version", "lineage.parent_version", 0, version - 1)}};
     out["proposed_by"] =
         Member(in, "proposed_by") ? json(Name(in, "proposed_by", "lineage.proposed_by")) : json();
     out["trials"] = Trials(in, "lineage.trials");

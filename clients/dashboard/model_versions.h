@@ -11,7 +11,9 @@
 //    "effects": [{"effect": "back_relaxation",
 //                 "params": {"fraction": {"value": 0.21, "half_width_95": 0.03}, ...}}],
 //    "heldout_rmse_before_mm": 0.085, "heldout_rmse_after_mm": 0.021, "heldout_gain": 4.05}
-// where heldout_gain = before / after.
+// where parent_version 0 means no model was active (the baseline was identified on the
+// diagnosed trials), proposed_by is "diagnose" or "policy" (flexidd's on_alert) and
+// heldout_gain = before / after (daemon/proposal.h).
 #pragma once
 
 #include <nlohmann/json.hpp>
@@ -30,7 +32,7 @@ namespace flexid::dashboard {
 // what was expected (one line), when the result is not such a list: not an array, a row
 // of another actuator, a version that is not an integer >= 1 or appears twice, "active"
 // not a boolean, two active versions, a lineage that is neither null nor an object with
-// an integer parent_version >= 1 below its version, an effect without a name, a number
+// an integer parent_version >= 0 below its version, an effect without a name, a number
 // field holding something else or a negative RMSE.
 std::optional<nlohmann::json> ModelVersionsFromJson(const nlohmann::json& rpc_result,
                                                     const std::string& actuator_id,

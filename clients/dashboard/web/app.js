@@ -156,6 +156,7 @@
     };
     cards.set(id, card);
     showPredicted(card);
+    showModel(card);
     return card;
   }
 
@@ -323,7 +324,9 @@
     const bits = [];
     if (lineage) {
       li.dataset.parent = String(lineage.parent_version);
-      bits.push('proposed from v' + lineage.parent_version + (lineage.proposed_by ? ' by ' + lineage.proposed_by : ''));
+      const by = lineage.proposed_by ? ' by ' + lineage.proposed_by : '';
+      bits.push(lineage.parent_version > 0 ? 'proposed from v' + lineage.parent_version + by
+        : 'proposed' + by + ' on a baseline identified on its trials');
       const effects = (lineage.effects || []).map((e) => {
         const params = Object.entries(e.params || {}).map(([name, p]) =>
           name + ' ' + fmt(p.value, 3) + (p.half_width_95 !== null && p.half_width_95 !== undefined ? ' ± ' + fmt(p.half_width_95, 2) : ''));
@@ -345,12 +348,12 @@
     return li;
   }
 
-  function showVersions(c, versions, total) {
+  function showVersions(c, versions, total, problem) {
     const box = c.versions;
     box.replaceChildren();
     if (!Array.isArray(versions)) {
       box.dataset.loaded = 'false';
-      box.append(el('span', 'versions-none', 'model versions: asking flexidd…'));
+      box.append(el('span', 'versions-none', 'model versions: ' + (problem || 'asking flexidd…')));
       return;
     }
     box.dataset.loaded = 'true';
@@ -440,7 +443,7 @@
       c.modelVersion = a.model_version;
       c.modelInfo = a.model;
       showModel(c);
-      showVersions(c, a.versions, a.versions_total);
+      showVersions(c, a.versions, a.versions_total, a.versions_problem);
       setReadout(c, a.latest, a.received, a.samples, a.trial, a.memberships);
       c.alerts.querySelectorAll('.alert').forEach((n) => n.remove());
       c.none.hidden = false;
@@ -514,7 +517,7 @@
         source.addEventListener('model', (e) => onModel(JSON.parse(e.data)));
         source.addEventListener('versions', (e) => {
           const v = JSON.parse(e.data);
-          showVersions(card(v.actuator), v.versions, v.total);
+          showVersions(card(v.actuator), v.versions, v.total, v.problem);
         });
         source.addEventListener('resync', () => reconnect(0));
         source.onerror = () => reconnect(retryMs);
