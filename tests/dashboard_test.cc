@@ -1,6 +1,8 @@
-// Tests of flexid-dashboard: the ring buffer, decimation and JSON of the live store; the
-// HTTP server on 127.0.0.1 (a free port) in-process, fed from LCM memq:// with a fake
-// flexidd answering RPC on the same bus; --listen validation, also through the binary.
+// Tests of flexid-dashboard: the ring buffer, decimation and JSON of the live store (points
+// from samples before any prediction, the hand-over to predictions), the model version
+// list parsed from a "models" reply; the HTTP server on 127.0.0.1 (a free port)
+// in-process, fed from LCM memq:// with a fake flexidd answering RPC on the same bus;
+// --listen validation, also through the binary.
 // The page itself is tested in headless Chromium by tests/dashboard/run_e2e.sh.
 #include <gtest/gtest.h>
 #include <httplib.h>
@@ -9,23 +11,29 @@
 #include <chrono>
 #include <cmath>
 #include <flexid/alert_t.hpp>
+#include <flexid/deflection_sample_t.hpp>
 #include <flexid/prediction_t.hpp>
 #include <flexid/rpc_reply_t.hpp>
 #include <flexid/rpc_request_t.hpp>
+#include <flexid/voltage_sample_t.hpp>
+#include <functional>
 #include <lcm/lcm-cpp.hpp>
 #include <limits>
+#include <map>
+#include <mutex>
 #include <string>
 #include <thread>
 #include <vector>
 
 #include "cli_process.h"
-#include "lcm_subscribe.h"
 #include "clients/dashboard/assets.h"
 #include "clients/dashboard/bus.h"
 #include "clients/dashboard/listen_address.h"
 #include "clients/dashboard/live_store.h"
+#include "clients/dashboard/model_versions.h"
 #include "clients/dashboard/ring_buffer.h"
 #include "clients/dashboard/server.h"
+#include "lcm_subscribe.h"
 #include "scratch_dir.h"
 
 namespace flexid::dashboard {
@@ -260,6 +268,139 @@ TEST(LiveStore, SummarizesAModelReply) {
   EXPECT_EQ(store.StateJson()["actuators"][0]["model"]["version"], 2);
 }
 
+// The points event of the last batch flushed, parsed.
+json LastPoints(const LiveStore& store) {
+  const EventWait wait = store.WaitEvents(0, std::chrono::milliseconds(0), 1000);
+  for (auto it = wait.events.rbegin(); it != wait.events.rend(); ++it)
+    if (it->name == "points") return json::parse(it->data);
+  return json();
+}
+
+TEST(LiveStore, SamplesDrawAnActuatorWithoutPredictions) {
+  LiveStore store;
+  const Clock::time_point t0 = Clock::now();
+  // A deflection sample before any voltage: voltage unknown (null), still a point.
+  EXPECT_EQ(store.AddDeflection({"S2", 1'000'000, 0.5}, t0), AddOutcome::kAccepted);
+  EXPECT_EQ(store.AddVoltage({"S2", 1'100'000, 2.0}), AddOutcome::kAccepted);
+  EXPECT_EQ(store.AddDeflection({"S2", 1'100'000, 0.6}, t0), AddOutcome::kAccepted);
+  // A step at 1.3 s arrives before the sample stamped 1.2 s: 2 V was still in force then.
+  EXPECT_EQ(store.AddVoltage({"S2", 1'300'000, 8.0}), AddOutcome::kAccepted);
+  EXPECT_EQ(store.AddDeflection({"S2", 1'200'000, 0.7}, t0), AddOutcome::kAccepted);
+  EXPECT_EQ(store.AddDeflection({"S2", 1'300'000, 0.8}, t0), AddOutcome::kAccepted);
+  EXPECT_EQ(store.FlushBatch(t0), 4u);
+  const json s2 = LastPoints(store)["actuators"][0];
+  EXPECT_EQ(s2["id"], "S2");
+  EXPECT_EQ(s2["samples"], 4);
+  EXPECT_EQ(s2["received"], 0);
+  EXPECT_EQ(s2["measured_mm"], json({0.5, 0.6, 0.7, 0.8}));
+  EXPECT_EQ(s2["voltage_V"], json({nullptr, 2.0, 2.0, 8.0}));
+  EXPECT_EQ(s2["predicted_mm"], json({nullptr, nullptr, nullptr, nullptr}));
+  EXPECT_EQ(s2["residual_mm"], json({nullptr, nullptr, nullptr, nullptr}));
+  EXPECT_EQ(store.counters().samples, 6);
+  EXPECT_EQ(store.StateJson()["actuators"][0]["history"]["t_s"].size(), 4u);
+
+  // A voltage alone makes the actuator's card (discovery from the sample channels).
+  EXPECT_EQ(store.AddVoltage({"S3", 5, 1.0}), AddOutcome::kAccepted);
+  EXPECT_EQ(store.ActuatorIds(), (std::vector<std::string>{"S2", "S3"}));
+}
+
+TEST(LiveStore, SamplesAreValidatedAndOrdered) {
+  LiveStore store;
+  const Clock::time_point t0 = Clock::now();
+  EXPECT_EQ(store.AddDeflection({"S2", 1'000'000, kNaN}, t0), AddOutcome::kInvalid);
+  EXPECT_EQ(store.AddDeflection({"S 2", 1'000'000, 1.0}, t0), AddOutcome::kInvalid);
+  EXPECT_EQ(store.AddVoltage({"S2", 1'000'000, std::numeric_limits<double>::infinity()}),
+            AddOutcome::kInvalid);
+  EXPECT_EQ(store.AddDeflection({"S2", 2'000'000, 1.0}, t0), AddOutcome::kAccepted);
+  EXPECT_EQ(store.AddDeflection({"S2", 2'000'000, 1.0}, t0), AddOutcome::kOutOfOrder);
+  EXPECT_EQ(store.AddVoltage({"S2", 2'000'000, 1.0}), AddOutcome::kAccepted);
+  EXPECT_EQ(store.AddVoltage({"S2", 1'999'999, 1.0}), AddOutcome::kOutOfOrder);
+  const Counters c = store.counters();
+  EXPECT_EQ(c.bad_messages, 3);
+  EXPECT_EQ(c.out_of_order, 2);
+  // Far back in time: a new run, the page is told to clear.
+  store.FlushBatch(t0);
+  EXPECT_EQ(store.AddVoltage({"S2", 100'000'000'000, 1.0}), AddOutcome::kAccepted);
+  EXPECT_EQ(store.AddDeflection({"S2", 100'000'000'000, 1.0}, t0), AddOutcome::kAccepted);
+  store.FlushBatch(t0);
+  EXPECT_EQ(store.AddVoltage({"S2", 10'000, 3.0}), AddOutcome::kAccepted);
+  EXPECT_EQ(store.AddDeflection({"S2", 10'000, 2.0}, t0), AddOutcome::kAccepted);
+  store.FlushBatch(t0);
+  const json batch = LastPoints(store)["actuators"][0];
+  EXPECT_TRUE(batch["reset"].get<bool>());
+  EXPECT_EQ(batch["voltage_V"], json({3.0}));
+  EXPECT_EQ(store.StateJson()["actuators"][0]["history"]["t_s"].size(), 1u);
+}
+
+// Prediction of sample k (utime 1 s + k ms) of S1, measured 0.001 k, predicted 0.001 k - 0.01.
+Prediction PredictionOf(int k, int32_t version = 2) {
+  return MakePrediction("S1", 1'000'000 + k * 1000, 0.001 * k, version);
+}
+DeflectionSample SampleOf(int k) { return {"S1", 1'000'000 + k * 1000, 0.001 * k}; }
+
+// Every point's time appears once, in order: nothing drawn twice.
+void ExpectEachTimeOnce(const json& t_s) {
+  for (size_t i = 1; i < t_s.size(); ++i)
+    EXPECT_GT(t_s[i].get<double>(), t_s[i - 1].get<double>()) << t_s.dump();
+}
+
+TEST(LiveStore, PredictionsTakeOverFromSamplesWithoutDrawingOneTwice) {
+  StoreOptions options;
+  options.max_points_per_batch = 1000;  // no decimation: every point counts
+  LiveStore store(options);
+  const Clock::time_point t0 = Clock::now();
+  // Samples 0-9 without predictions (no model yet): ten points.
+  for (int k = 0; k < 10; ++k)
+    EXPECT_EQ(store.AddDeflection(SampleOf(k), t0), AddOutcome::kAccepted);
+  // A model becomes active: samples 10-12 arrive, then the predictions of 9-12 (flexidd
+  // runs a little behind the source). 9's sample is drawn already: covered.
+  for (int k = 10; k < 13; ++k)
+    EXPECT_EQ(store.AddDeflection(SampleOf(k), t0), AddOutcome::kAccepted);
+  EXPECT_EQ(store.AddPrediction(PredictionOf(9), t0), AddOutcome::kCovered);
+  EXPECT_EQ(store.AddPrediction(PredictionOf(12), t0), AddOutcome::kCovered);
+  // From now on samples wait for their predictions, which draw the points.
+  for (int k = 13; k < 20; ++k) {
+    EXPECT_EQ(store.AddDeflection(SampleOf(k), t0), AddOutcome::kHeld);
+    EXPECT_EQ(store.AddPrediction(PredictionOf(k), t0), AddOutcome::kAccepted);
+  }
+  EXPECT_EQ(store.FlushBatch(t0), 20u);
+  json s1 = LastPoints(store)["actuators"][0];
+  ExpectEachTimeOnce(s1["t_s"]);
+  ASSERT_EQ(s1["predicted_mm"].size(), 20u);
+  EXPECT_TRUE(s1["predicted_mm"][12].is_null());  // drawn from its sample
+  EXPECT_DOUBLE_EQ(s1["predicted_mm"][13].get<double>(), 0.013 - 0.01);
+  EXPECT_EQ(s1["received"], 9);
+  EXPECT_EQ(s1["samples"], 20);
+
+  // The predictions stop (the model's flexidd went away): the held samples are not lost,
+  // once prediction_timeout has passed they are the points.
+  for (int k = 20; k < 25; ++k) EXPECT_EQ(store.AddDeflection(SampleOf(k), t0), AddOutcome::kHeld);
+  EXPECT_EQ(store.FlushBatch(t0 + std::chrono::milliseconds(500)), 0u);  // still waiting
+  const Clock::time_point later = t0 + options.prediction_timeout;
+  EXPECT_EQ(store.FlushBatch(later), 5u);
+  EXPECT_EQ(store.AddDeflection(SampleOf(25), later), AddOutcome::kAccepted);
+  EXPECT_EQ(store.FlushBatch(later), 1u);
+  const json history = store.StateJson()["actuators"][0]["history"];
+  ASSERT_EQ(history["t_s"].size(), 26u);
+  ExpectEachTimeOnce(history["t_s"]);
+  EXPECT_DOUBLE_EQ(history["measured_mm"][24].get<double>(), 0.024);
+  EXPECT_TRUE(history["predicted_mm"][24].is_null());
+}
+
+TEST(LiveStore, HeldSamplesAreBounded) {
+  StoreOptions options;
+  options.max_points_per_batch = 10;
+  options.max_pending_points = 100;
+  LiveStore store(options);
+  const Clock::time_point t0 = Clock::now();
+  store.AddPrediction(PredictionOf(0), t0);
+  for (int k = 1; k <= 1000; ++k) store.AddDeflection(SampleOf(k), t0);
+  EXPECT_EQ(store.FlushBatch(t0 + std::chrono::seconds(2)), 10u);
+  const json s1 = LastPoints(store)["actuators"][0];
+  ExpectEachTimeOnce(s1["t_s"]);
+  EXPECT_DOUBLE_EQ(s1["t_s"][0].get<double>(), 1.0);  // the prediction's point, then samples
+}
+
 TEST(LiveStore, StreamsThatFallBehindResync) {
   StoreOptions options;
   options.max_events = 4;
@@ -275,6 +416,168 @@ TEST(LiveStore, StreamsThatFallBehindResync) {
   EXPECT_TRUE(store.WaitEvents(1000, std::chrono::milliseconds(0)).events.empty());
   store.Close();
   EXPECT_TRUE(store.WaitEvents(10, std::chrono::seconds(10)).closed);
+}
+
+// ---------------------------------------------------------------------------------------
+// Model versions from the "models" reply
+
+// Rows as storage's ModelSummaryJson writes them, oldest first (as a reply need not be).
+json ModelsReply(const std::string& actuator_id = "S1") {
+  const json identified = {{"actuator", actuator_id},
+                           {"version", 3},
+                           {"created_utime", 1'700'000'000'000'000},
+                           {"active", true},
+                           {"trials", {1, 2}},
+                           {"samples_hash", "abc"},
+                           {"flexid_version", "0.9.0"},
+                           {"fit", {{"fit_percent", 97.87555801336588}, {"rmse_mm", 0.0859}}},
+                           {"lineage", nullptr}};
+  json proposal = identified;
+  proposal["version"] = 4;
+  proposal["active"] = false;
+  proposal["trials"] = {12};
+  proposal["lineage"] = {{"parent_version", 3},
+                         {"proposed_by", "diagnose"},
+                         {"trials", {12}},
+                         {"effects",
+                          {{{"effect", "back_relaxation"},
+                            {"params",
+                             {{"fraction", {{"value", 0.21}, {"half_width_95", 0.03}}},
+                              {"tau_s", {{"value", 31.0}, {"half_width_95", 4.0}}}}}}}},
+                         {"heldout_rmse_before_mm", 0.085},
+                         {"heldout_rmse_after_mm", 0.021},
+                         {"heldout_gain", 4.0476190476}};
+  json old = identified;  // from a flexidd before lineages: no field at all
+  old.erase("lineage");
+  old["version"] = 1;
+  old["active"] = false;
+  return json::array({old, identified, proposal});
+}
+
+TEST(ModelVersions, ParsesIdentifiedAndProposedNewestFirst) {
+  std::string why;
+  const std::optional<json> versions = ModelVersionsFromJson(ModelsReply(), "S1", &why);
+  ASSERT_TRUE(versions) << why;
+  ASSERT_EQ(versions->size(), 3u);
+  const json& proposal = (*versions)[0];
+  EXPECT_EQ(proposal["version"], 4);
+  EXPECT_EQ(proposal["active"], false);
+  const json& lineage = proposal["lineage"];
+  EXPECT_EQ(lineage["parent_version"], 3);
+  EXPECT_EQ(lineage["proposed_by"], "diagnose");
+  EXPECT_EQ(lineage["trials"], json({12}));
+  ASSERT_EQ(lineage["effects"].size(), 1u);
+  EXPECT_EQ(lineage["effects"][0]["effect"], "back_relaxation");
+  EXPECT_DOUBLE_EQ(lineage["effects"][0]["params"]["tau_s"]["value"].get<double>(), 31.0);
+  EXPECT_DOUBLE_EQ(lineage["effects"][0]["params"]["fraction"]["half_width_95"].get<double>(),
+                   0.03);
+  EXPECT_DOUBLE_EQ(lineage["heldout_rmse_before_mm"].get<double>(), 0.085);
+  EXPECT_DOUBLE_EQ(lineage["heldout_rmse_after_mm"].get<double>(), 0.021);
+  EXPECT_EQ(lineage["heldout_gain"].dump(), "4.048");  // 4 significant digits
+  const json& identified = (*versions)[1];
+  EXPECT_EQ(identified["version"], 3);
+  EXPECT_EQ(identified["active"], true);
+  EXPECT_TRUE(identified["lineage"].is_null());
+  EXPECT_EQ(identified["fit"]["fit_percent"].dump(), "97.88");
+  EXPECT_EQ(identified["trials"], json({1, 2}));
+  EXPECT_FALSE(identified.contains("samples_hash"));
+  // Today's flexidd sends no lineage: identified.
+  EXPECT_EQ((*versions)[2]["version"], 1);
+  EXPECT_TRUE((*versions)[2]["lineage"].is_null());
+  // An actuator without models: an empty list.
+  EXPECT_EQ(ModelVersionsFromJson(json::array(), "S1", &why), json::array());
+}
+
+TEST(ModelVersions, FillsInTheGainAndTakesAProposalWithoutParent) {
+  json reply = ModelsReply();
+  reply[2]["lineage"].erase("heldout_gain");
+  reply[2]["lineage"]["effects"][0]["params"]["fraction"] = 0.2;  // a bare value
+  reply[2]["lineage"]["parent_version"] = 0;                      // no model was active: a baseline
+  std::string why;
+  const std::optional<json> versions = ModelVersionsFromJson(reply, "S1", &why);
+  ASSERT_TRUE(versions) << why;
+  EXPECT_EQ((*versions)[0]["lineage"]["heldout_gain"].dump(), "4.048");
+  EXPECT_EQ((*versions)[0]["lineage"]["parent_version"], 0);
+  const json& fraction = (*versions)[0]["lineage"]["effects"][0]["params"]["fraction"];
+  EXPECT_DOUBLE_EQ(fraction["value"].get<double>(), 0.2);
+  EXPECT_TRUE(fraction["half_width_95"].is_null());
+}
+
+TEST(ModelVersions, RejectsABadReplyNamingRowAndField) {
+  struct Case {
+    std::function<void(json&)> spoil;
+    std::string expected;
+  };
+  const std::vector<Case> cases = {
+      {[](json& r) { r = json::object(); }, "expected an array of model versions"},
+      {[](json& r) { r[0] = 7; }, "row 1: expected an object"},
+      {[](json& r) { r[1]["actuator"] = "S2"; }, "row 2: actuator: expected \"S1\" (got \"S2\")"},
+      {[](json& r) { r[1].erase("version"); }, "row 2: version: expected an integer"},
+      {[](json& r) { r[1]["version"] = 0; }, "row 2: version: expected an integer from 1 to"},
+      {[](json& r) { r[1]["version"] = "3"; }, "row 2: version: expected an integer"},
+      {[](json& r) { r[0]["version"] = 3; }, "row 2: version 3 appears twice"},
+      {[](json& r) { r[1]["active"] = 1; }, "row 2 (version 3): active: expected true or false"},
+      {[](json& r) { r[2]["active"] = true; }, "versions 3 and 4 are both active"},
+      {[](json& r) { r[2]["lineage"] = "diagnose"; },
+       "row 3 (version 4): lineage: expected null or an object"},
+      {[](json& r) { r[2]["lineage"].erase("parent_version"); },
+       "row 3 (version 4): lineage.parent_version: expected an integer"},
+      {[](json& r) { r[2]["lineage"]["parent_version"] = 4; },
+       "row 3 (version 4): lineage.parent_version: expected an integer from 0 to 3 (got 4)"},
+      {[](json& r) { r[2]["lineage"]["parent_version"] = -1; },
+       "row 3 (version 4): lineage.parent_version: expected an integer from 0 to 3 (got -1)"},
+      {[](json& r) { r[2]["lineage"]["effects"][0].erase("effect"); },
+       "row 3 (version 4): lineage.effects[0].effect: expected a name of 1 to 64 characters"},
+      {[](json& r) { r[2]["lineage"]["effects"] = "back_relaxation"; },
+       "row 3 (version 4): lineage.effects: expected an array of at most 16 effects"},
+      {[](json& r) { r[2]["lineage"]["effects"][0]["params"]["tau_s"]["value"] = "31"; },
+       "row 3 (version 4): lineage.effects[0].params.tau_s.value: expected a finite number"},
+      {[](json& r) { r[2]["lineage"]["heldout_rmse_after_mm"] = -0.1; },
+       "row 3 (version 4): lineage.heldout_rmse_after_mm: expected a finite number >= 0"},
+      {[](json& r) { r[2]["lineage"]["trials"] = {0}; },
+       "row 3 (version 4): lineage.trials: expected trial ids >= 1"},
+      {[](json& r) { r[1]["fit"] = 97.9; }, "row 2 (version 3): fit: expected null or an object"},
+  };
+  for (const Case& c : cases) {
+    json reply = ModelsReply();
+    c.spoil(reply);
+    std::string why;
+    EXPECT_FALSE(ModelVersionsFromJson(reply, "S1", &why)) << c.expected;
+    EXPECT_EQ(why.rfind(c.expected, 0), 0u) << "got: " << why;
+    EXPECT_EQ(why.find('\n'), std::string::npos) << why;
+  }
+}
+
+TEST(ModelVersions, TheStoreKeepsTheNewestAndSendsAnEvent) {
+  StoreOptions options;
+  options.max_model_versions = 2;
+  LiveStore store(options);
+  std::string why;
+  store.SetModelVersions("S1", *ModelVersionsFromJson(ModelsReply(), "S1", &why));
+  const json state = store.StateJson();
+  ASSERT_EQ(state["actuators"].size(), 1u);
+  const json& s1 = state["actuators"][0];
+  ASSERT_EQ(s1["versions"].size(), 2u);
+  EXPECT_EQ(s1["versions"][0]["version"], 4);
+  EXPECT_EQ(s1["versions_total"], 3);
+  const EventWait wait = store.WaitEvents(0, std::chrono::milliseconds(0));
+  ASSERT_EQ(wait.events.size(), 1u);
+  EXPECT_EQ(wait.events[0].name, "versions");
+  EXPECT_EQ(json::parse(wait.events[0].data)["actuator"], "S1");
+  // Before flexidd answered: null, which the page shows as "asking".
+  LiveStore fresh;
+  fresh.AddVoltage({"S1", 1, 1.0});
+  EXPECT_TRUE(fresh.StateJson()["actuators"][0]["versions"].is_null());
+}
+
+TEST(ModelVersions, AProblemFromTheBusIsKeptAsOneShortLine) {
+  LiveStore store;
+  store.NoteBadReply("models of S1: flexidd answered: " + std::string(400, 'x') + "\nmore");
+  EXPECT_EQ(store.counters().bad_replies, 1);
+  const std::string kept = store.last_problem();
+  EXPECT_EQ(kept.size(), 303u);
+  EXPECT_EQ(kept.find('\n'), std::string::npos);
+  EXPECT_EQ(kept.substr(300), "...");
 }
 
 // ---------------------------------------------------------------------------------------
@@ -324,11 +627,22 @@ TEST(Listen, TheBinaryExitsWithUsageError) {
 
 class FakeDaemon {
  public:
+  static constexpr char kRefused[] = "S8";  // an actuator this flexidd does not know
+
   explicit FakeDaemon(lcm::LCM& lcm) : lcm_(lcm) {
     testing::SubscribeMember<&FakeDaemon::OnRequest>(lcm_, "FLEXID/RPC/REQUEST", this);
   }
   std::atomic<int> model_requests{0};
   std::atomic<int> alert_requests{0};
+  // The "models" result for an actuator from now on (default: no versions).
+  void SetModels(const std::string& actuator_id, json result) {
+    std::lock_guard lock(mutex_);
+    models_[actuator_id] = std::move(result);
+  }
+  int ModelsRequests(const std::string& actuator_id) {
+    std::lock_guard lock(mutex_);
+    return models_requests_[actuator_id];
+  }
 
  private:
   void OnRequest(const lcm::ReceiveBuffer*, const std::string&,
@@ -350,6 +664,15 @@ class FakeDaemon {
                {"model",
                 {{"kind", "ts_fuzzy"}, {"local_models", {{{"level_V", 2}}, {{"level_V", 8}}}}}}}
               .dump();
+    } else if (request->method == "models") {
+      std::lock_guard lock(mutex_);
+      const std::string id = args["actuator"];
+      ++models_requests_[id];
+      reply.result_json = models_.contains(id) ? models_[id].dump() : "[]";
+      if (id == kRefused) {  // as flexidd with accept_unknown_actuators = false
+        reply.status = flexid::rpc_reply_t::kBadRequest;
+        reply.error = "unknown actuator \"" + id + "\"";
+      }
     } else if (request->method == "alerts") {
       ++alert_requests;
       reply.result_json = json::array({{{"actuator", "S9"},
@@ -365,6 +688,9 @@ class FakeDaemon {
     lcm_.publish("FLEXID/RPC/REPLY/" + request->client_id, &reply);
   }
   lcm::LCM& lcm_;
+  std::mutex mutex_;
+  std::map<std::string, json> models_;
+  std::map<std::string, int> models_requests_;
 };
 
 class DashboardServerTest : public ::testing::Test {
@@ -373,6 +699,7 @@ class DashboardServerTest : public ::testing::Test {
     ASSERT_TRUE(lcm_.good());
     BusOptions bus_options;
     bus_options.batch_interval = std::chrono::milliseconds(50);
+    bus_options.models_refresh_min = std::chrono::milliseconds(100);
     bus_ = std::make_unique<BusAdapter>(lcm_, store_, bus_options);
     ServerOptions server_options;
     server_options.port = 0;
@@ -409,6 +736,35 @@ class DashboardServerTest : public ::testing::Test {
     p.num_memberships = 2;
     p.memberships = {0.5, 0.5};
     lcm_.publish("FLEXID/" + id + "/PREDICTION", &p);
+  }
+
+  // A voltage and a deflection sample of `id`, on the channels of `channel_id` (default id).
+  void PublishSamples(const std::string& id, int64_t utime, double voltage_V, double deflection_mm,
+                      std::string channel_id = "") {
+    if (channel_id.empty()) channel_id = id;
+    flexid::voltage_sample_t v;
+    v.utime = utime;
+    v.actuator_id = id;
+    v.voltage_V = voltage_V;
+    lcm_.publish("FLEXID/" + channel_id + "/VOLTAGE", &v);
+    flexid::deflection_sample_t d;
+    d.utime = utime;
+    d.actuator_id = id;
+    d.deflection_mm = deflection_mm;
+    lcm_.publish("FLEXID/" + channel_id + "/DEFLECTION", &d);
+  }
+
+  void PublishAlert(const std::string& id, int64_t utime, const std::string& kind) {
+    flexid::alert_t a;
+    a.utime = utime;
+    a.actuator_id = id;
+    a.kind = kind;
+    a.severity = flexid::alert_t::kInfo;
+    a.start_utime = a.end_utime = utime;
+    a.magnitude_mm = 0.0;
+    a.threshold_mm = 0.0;
+    a.text = id + ": " + kind;
+    lcm_.publish("FLEXID/ALERT", &a);
   }
 
   // Polls /api/state until `done` holds for it (at most 5 s).
@@ -494,6 +850,94 @@ TEST_F(DashboardServerTest, StateShowsAPredictionAndItsModel) {
   EXPECT_EQ(daemon.alert_requests.load(), 1);
 }
 
+TEST_F(DashboardServerTest, SamplesChartAnActuatorWithoutAModel) {
+  FakeDaemon daemon(lcm_);  // S2 has no model: no prediction, no version
+  for (int k = 0; k < 5; ++k) PublishSamples("S2", 1'000'000'000 + k * 100'000, 2.0, 0.1 * k);
+  const json state = WaitForState([](const json& s) {
+    return !s["actuators"].empty() && s["actuators"][0]["history"]["t_s"].size() == 5 &&
+           s["actuators"][0]["versions"].is_array();
+  });
+  ASSERT_FALSE(state["actuators"].empty());
+  const json& s2 = state["actuators"][0];
+  EXPECT_EQ(s2["id"], "S2");
+  EXPECT_EQ(s2["samples"], 5);
+  EXPECT_EQ(s2["received"], 0);
+  EXPECT_EQ(s2["model_version"], 0);
+  EXPECT_EQ(s2["history"]["measured_mm"], json({0.0, 0.1, 0.2, 0.3, 0.4}));
+  EXPECT_EQ(s2["history"]["voltage_V"], json({2.0, 2.0, 2.0, 2.0, 2.0}));
+  EXPECT_TRUE(s2["history"]["predicted_mm"][4].is_null());
+  EXPECT_EQ(s2["versions"], json::array());
+  EXPECT_EQ(state["counters"]["samples"], 10);
+  EXPECT_EQ(state["counters"]["bad_replies"], 0);
+}
+
+TEST_F(DashboardServerTest, AnActuatorFlexiddRefusesSaysWhyItHasNoVersions) {
+  FakeDaemon daemon(lcm_);
+  PublishSamples(FakeDaemon::kRefused, 1'000'000'000, 2.0, 0.1);
+  const json state = WaitForState([](const json& s) {
+    return !s["actuators"].empty() && s["actuators"][0]["versions_problem"].is_string() &&
+           !s["actuators"][0]["history"]["t_s"].empty();  // flexidd may answer before a batch
+  });
+  const json& s8 = state["actuators"][0];
+  EXPECT_EQ(s8["history"]["measured_mm"], json({0.1}));  // charted all the same
+  EXPECT_TRUE(s8["versions"].is_null());
+  EXPECT_EQ(s8["versions_problem"], "flexidd answered: unknown actuator \"S8\"");
+  EXPECT_EQ(state["last_problem"], "models of S8: flexidd answered: unknown actuator \"S8\"");
+}
+
+TEST_F(DashboardServerTest, VersionsAreAskedAgainWhenAModelAlertComes) {
+  FakeDaemon daemon(lcm_);
+  PublishSamples("S1", 1'000'000'000, 2.0, 0.1);
+  WaitForState([](const json& s) {
+    return !s["actuators"].empty() && s["actuators"][0]["versions"].is_array();
+  });
+  // A diagnosis stores a proposal: flexidd says so with a "model_proposed" alert.
+  json models = ModelsReply();
+  daemon.SetModels("S1", models);
+  PublishAlert("S1", 1'000'000'001, "model_proposed");
+  json state = WaitForState([](const json& s) {
+    const json& v = s["actuators"][0]["versions"];
+    return v.is_array() && v.size() == 3;
+  });
+  json proposal = state["actuators"][0]["versions"][0];
+  EXPECT_EQ(proposal["version"], 4);
+  EXPECT_EQ(proposal["active"], false);
+  EXPECT_EQ(proposal["lineage"]["parent_version"], 3);
+  // `flexid models activate` makes it the active one: "model_changed".
+  models[1]["active"] = false;
+  models[2]["active"] = true;
+  daemon.SetModels("S1", models);
+  PublishAlert("S1", 1'000'000'002, "model_changed");
+  state = WaitForState(
+      [](const json& s) { return s["actuators"][0]["versions"][0]["active"] == true; });
+  EXPECT_EQ(state["actuators"][0]["versions"][1]["active"], false);
+  // A reply that does not parse is counted with its reason; the list stays as it was.
+  models[1]["active"] = true;
+  daemon.SetModels("S1", models);
+  PublishAlert("S1", 1'000'000'003, "model_changed");
+  state = WaitForState([](const json& s) { return s["counters"]["bad_replies"] >= 1; });
+  EXPECT_EQ(state["last_problem"], "models of S1: versions 3 and 4 are both active");
+  EXPECT_EQ(state["actuators"][0]["versions"][0]["active"], true);
+  const auto health = Client().Get("/healthz");
+  ASSERT_TRUE(health);
+  EXPECT_EQ(json::parse(health->body)["last_problem"], state["last_problem"]);
+}
+
+TEST_F(DashboardServerTest, APageLoadAsksForTheVersionsAgain) {
+  FakeDaemon daemon(lcm_);
+  PublishSamples("S1", 1'000'000'000, 2.0, 0.1);
+  WaitForState([](const json& s) {
+    return !s["actuators"].empty() && s["actuators"][0]["versions"].is_array();
+  });
+  const int before = daemon.ModelsRequests("S1");
+  std::this_thread::sleep_for(std::chrono::milliseconds(150));  // models_refresh_min
+  ASSERT_TRUE(Client().Get("/api/state"));
+  for (int i = 0; i < 100 && daemon.ModelsRequests("S1") == before; ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  EXPECT_EQ(daemon.ModelsRequests("S1"), before + 1);
+  EXPECT_EQ(store_.counters().bad_replies, 0);
+}
+
 TEST_F(DashboardServerTest, EventsStreamDeliversAPrediction) {
   std::string received;
   std::atomic<bool> streaming{false};
@@ -521,8 +965,9 @@ TEST_F(DashboardServerTest, EventsStreamDeliversAPrediction) {
 
 TEST_F(DashboardServerTest, MalformedMessagesAreCountedNotFatal) {
   const std::string garbage = "not an lcm message";
-  lcm_.publish("FLEXID/S1/PREDICTION", garbage.data(), static_cast<unsigned>(garbage.size()));
-  lcm_.publish("FLEXID/ALERT", garbage.data(), static_cast<unsigned>(garbage.size()));
+  for (const char* channel :
+       {"FLEXID/S1/PREDICTION", "FLEXID/ALERT", "FLEXID/S1/VOLTAGE", "FLEXID/S1/DEFLECTION"})
+    lcm_.publish(channel, garbage.data(), static_cast<unsigned>(garbage.size()));
   // A prediction whose string length field claims ~2 GB.
   flexid::prediction_t p;
   p.utime = 1'000'000;
@@ -542,13 +987,16 @@ TEST_F(DashboardServerTest, MalformedMessagesAreCountedNotFatal) {
   Publish("S2", 1'000'000, 1.0);  // fine
   p.actuator_id = "S3";
   lcm_.publish("FLEXID/S2/PREDICTION", &p);
+  // Well-formed samples of S3 on S2's channels.
+  PublishSamples("S3", 1'000'000, 1.0, 1.0, "S2");
   const json state = WaitForState([](const json& s) {
-    return s["counters"]["bad_messages"] == 4 && s["counters"]["predictions"] == 1;
+    return s["counters"]["bad_messages"] == 8 && s["counters"]["predictions"] == 1;
   });
   EXPECT_EQ(state["actuators"].size(), 1u);
+  EXPECT_EQ(state["counters"]["samples"], 0);
   const auto health = Client().Get("/healthz");
   ASSERT_TRUE(health);
-  EXPECT_EQ(json::parse(health->body)["bad_messages"], 4);
+  EXPECT_EQ(json::parse(health->body)["bad_messages"], 8);
 }
 
 TEST(Assets, EveryAssetIsEmbedded) {

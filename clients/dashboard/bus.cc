@@ -1,36 +1,64 @@
-// The dashboard's bus adapter (bus.h): validated predictions and alerts into the store,
-// and non-blocking RPC to flexidd for model summaries and recent alerts.
+// The dashboard's bus adapter (bus.h): validated samples, predictions and alerts into the
+// store, and non-blocking RPC to flexidd for model summaries, model versions and recent
+// alerts.
 #include "clients/dashboard/bus.h"
 
 #include <unistd.h>
 
 #include <algorithm>
 #include <flexid/alert_t.hpp>
+#include <flexid/deflection_sample_t.hpp>
 #include <flexid/prediction_t.hpp>
 #include <flexid/rpc_reply_t.hpp>
 #include <flexid/rpc_request_t.hpp>
+#include <flexid/voltage_sample_t.hpp>
 
+#include "bus/ids.h"
 #include "bus/rpc_client.h"
+#include "clients/dashboard/model_versions.h"
 #include "lcmtypes/wire_check.h"
 
 namespace flexid::dashboard {
+namespace {
+
+// A message from the bus, walked by wire::WellFormed before lcm-gen's decoder sees it.
+template <typename Message>
+bool Decode(const lcm::ReceiveBuffer* rbuf, std::initializer_list<wire::Field> layout,
+            Message* message) {
+  return wire::WellFormed(rbuf->data, rbuf->data_size, layout) &&
+         message->decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) > 0;
+}
+
+}  // namespace
+
+// Nothing may throw through LCM's C callback: the handler runs inside a catch-all that
+// counts what escaped as a bad message.
+template <void (BusAdapter::*kHandle)(const lcm::ReceiveBuffer*, const std::string&)>
+void BusAdapter::Subscribe(const std::string& pattern, int queue_capacity) {
+  void (*guarded)(const lcm::ReceiveBuffer*, const std::string&, BusAdapter*) =
+      [](const lcm::ReceiveBuffer* rbuf, const std::string& channel, BusAdapter* self) {
+        try {
+          (self->*kHandle)(rbuf, channel);
+        } catch (...) {
+          self->store_.CountBadMessage();
+        }
+      };
+  subscriptions_.push_back(lcm_.subscribeFunction(pattern, guarded, this));
+  subscriptions_.back()->setQueueCapacity(queue_capacity);
+}
 
 BusAdapter::BusAdapter(lcm::LCM& lcm, LiveStore& store, BusOptions options)
     : lcm_(lcm), store_(store), options_(std::move(options)), channels_(options_.channel_prefix) {
   if (options_.client_id.empty())
     options_.client_id =
         "dashboard-" + std::to_string(getpid()) + "-" + bus::RandomRequestId().substr(0, 8);
-  // Queues as deep as `flexid watch` uses: a burst of 16 x 500 Hz predictions must not
-  // be dropped by LCM before the loop gets to it.
-  subscriptions_.push_back(
-      lcm_.subscribeFunction(channels_.AllPredictions(), &BusAdapter::OnPrediction, this));
-  subscriptions_.back()->setQueueCapacity(1 << 16);
-  subscriptions_.push_back(
-      lcm_.subscribeFunction(bus::Exactly(channels_.Alert()), &BusAdapter::OnAlert, this));
-  subscriptions_.back()->setQueueCapacity(1000);
-  subscriptions_.push_back(lcm_.subscribeFunction(
-      bus::Exactly(channels_.RpcReply(options_.client_id)), &BusAdapter::OnReply, this));
-  subscriptions_.back()->setQueueCapacity(100);
+  // Queues as deep as `flexid watch` uses: a burst of 16 x 500 Hz samples and predictions
+  // must not be dropped by LCM before the loop gets to it.
+  Subscribe<&BusAdapter::HandleVoltage>(channels_.AllVoltages(), 1 << 16);
+  Subscribe<&BusAdapter::HandleDeflection>(channels_.AllDeflections(), 1 << 16);
+  Subscribe<&BusAdapter::HandlePrediction>(channels_.AllPredictions(), 1 << 16);
+  Subscribe<&BusAdapter::HandleAlert>(bus::Exactly(channels_.Alert()), 1000);
+  Subscribe<&BusAdapter::HandleReply>(bus::Exactly(channels_.RpcReply(options_.client_id)), 100);
   next_batch_ = Clock::now() + options_.batch_interval;
 }
 
@@ -38,36 +66,29 @@ BusAdapter::~BusAdapter() {
   for (lcm::Subscription* s : subscriptions_) lcm_.unsubscribe(s);
 }
 
-// Nothing may throw through LCM's C callback: each handler catches at the edge and counts.
-void BusAdapter::OnPrediction(const lcm::ReceiveBuffer* rbuf, const std::string& channel,
-                              BusAdapter* self) {
-  try {
-    self->HandlePrediction(rbuf, channel);
-  } catch (...) {
-    self->store_.CountBadMessage();
+void BusAdapter::HandleVoltage(const lcm::ReceiveBuffer* rbuf, const std::string& channel) {
+  flexid::voltage_sample_t message;
+  if (!Decode(rbuf, wire::kVoltageSample, &message) ||
+      channel != channels_.Voltage(message.actuator_id)) {
+    store_.CountBadMessage();
+    return;
   }
+  store_.AddVoltage({message.actuator_id, message.utime, message.voltage_V});
 }
 
-void BusAdapter::OnAlert(const lcm::ReceiveBuffer* rbuf, const std::string&, BusAdapter* self) {
-  try {
-    self->HandleAlert(rbuf);
-  } catch (...) {
-    self->store_.CountBadMessage();
+void BusAdapter::HandleDeflection(const lcm::ReceiveBuffer* rbuf, const std::string& channel) {
+  flexid::deflection_sample_t message;
+  if (!Decode(rbuf, wire::kDeflectionSample, &message) ||
+      channel != channels_.Deflection(message.actuator_id)) {
+    store_.CountBadMessage();
+    return;
   }
-}
-
-void BusAdapter::OnReply(const lcm::ReceiveBuffer* rbuf, const std::string&, BusAdapter* self) {
-  try {
-    self->HandleReply(rbuf);
-  } catch (...) {
-    self->store_.CountBadMessage();
-  }
+  store_.AddDeflection({message.actuator_id, message.utime, message.deflection_mm});
 }
 
 void BusAdapter::HandlePrediction(const lcm::ReceiveBuffer* rbuf, const std::string& channel) {
   flexid::prediction_t message;
-  if (!wire::WellFormed(rbuf->data, rbuf->data_size, wire::kPrediction) ||
-      message.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) <= 0 ||
+  if (!Decode(rbuf, wire::kPrediction, &message) ||
       channel != channels_.Prediction(message.actuator_id)) {
     store_.CountBadMessage();
     return;
@@ -79,14 +100,14 @@ void BusAdapter::HandlePrediction(const lcm::ReceiveBuffer* rbuf, const std::str
   p.model_version = message.model_version;
   p.trial_id = message.trial_id;
   p.memberships = message.memberships;
-  if (store_.AddPrediction(p) == AddOutcome::kAccepted && p.model_version > 0)
+  const AddOutcome outcome = store_.AddPrediction(p);
+  if ((outcome == AddOutcome::kAccepted || outcome == AddOutcome::kCovered) && p.model_version > 0)
     MaybeFetchModel(p.actuator_id, p.model_version);
 }
 
-void BusAdapter::HandleAlert(const lcm::ReceiveBuffer* rbuf) {
+void BusAdapter::HandleAlert(const lcm::ReceiveBuffer* rbuf, const std::string&) {
   flexid::alert_t message;
-  if (!wire::WellFormed(rbuf->data, rbuf->data_size, wire::kAlert) ||
-      message.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) <= 0) {
+  if (!Decode(rbuf, wire::kAlert, &message)) {
     store_.CountBadMessage();
     return;
   }
@@ -100,10 +121,16 @@ void BusAdapter::HandleAlert(const lcm::ReceiveBuffer* rbuf) {
   a.magnitude_mm = message.magnitude_mm;
   a.threshold_mm = message.threshold_mm;
   a.text = message.text;
-  store_.AddAlert(a);
+  // A new alert about models (the active version changed, a version was proposed): the
+  // version list changed; ask now rather than after the usual pause.
+  if (store_.AddAlert(a) && a.kind.starts_with("model_") && bus::IsValidId(a.actuator_id)) {
+    VersionsFetch& fetch = versions_[a.actuator_id];
+    fetch.wanted = true;
+    if (fetch.failures == 0) fetch.not_before = Clock::now();
+  }
 }
 
-void BusAdapter::HandleReply(const lcm::ReceiveBuffer* rbuf) {
+void BusAdapter::HandleReply(const lcm::ReceiveBuffer* rbuf, const std::string&) {
   const std::optional<flexid::rpc_reply_t> decoded = bus::DecodeReply(*rbuf);
   if (!decoded) {
     store_.CountBadMessage();
@@ -115,12 +142,18 @@ void BusAdapter::HandleReply(const lcm::ReceiveBuffer* rbuf) {
   const PendingCall call = it->second;
   pending_.erase(it);
   const bool ok = reply.status == flexid::rpc_reply_t::kOk;
+  if (call.method == "models") {
+    HandleVersions(call, reply);
+    return;
+  }
   const nlohmann::json result =
       ok ? nlohmann::json::parse(reply.result_json, nullptr, false) : nlohmann::json();
   const auto retry_after = Clock::now() + options_.rpc_retry;
   if (call.method == "alerts") {
     alerts_in_flight_ = false;
     if (!ok || !result.is_array()) {
+      store_.NoteBadReply("alerts: " + (ok ? std::string("expected an array of alerts")
+                                           : "flexidd answered: " + reply.error));
       alerts_retry_after_ = retry_after;
       return;
     }
@@ -134,11 +167,67 @@ void BusAdapter::HandleReply(const lcm::ReceiveBuffer* rbuf) {
     fetch.in_flight = false;
     const std::optional<nlohmann::json> summary = ok ? SummarizeModel(result) : std::nullopt;
     if (!summary) {
+      store_.NoteBadReply("model " + std::to_string(call.version) + " of " + call.actuator_id +
+                          ": " +
+                          (ok ? std::string("expected an object with actuator and version")
+                              : "flexidd answered: " + reply.error));
       fetch.retry_after = retry_after;
       return;
     }
     store_.SetModel(*summary);
     fetch.fetched = call.version;
+  }
+}
+
+void BusAdapter::HandleVersions(const PendingCall& call, const flexid::rpc_reply_t& reply) {
+  const auto now = Clock::now();
+  VersionsFetch& fetch = versions_[call.actuator_id];
+  fetch.in_flight = false;
+  std::string problem;
+  if (reply.status != flexid::rpc_reply_t::kOk) {
+    problem = "flexidd answered: " + reply.error;
+  } else {
+    const nlohmann::json result = nlohmann::json::parse(reply.result_json, nullptr, false);
+    if (result.is_discarded()) {
+      problem = "the result is not JSON";
+    } else if (const std::optional<nlohmann::json> versions =
+                   ModelVersionsFromJson(result, call.actuator_id, &problem)) {
+      store_.SetModelVersions(call.actuator_id, *versions);
+      fetch.failures = 0;
+      fetch.not_before = now + options_.models_refresh_min;
+      return;
+    }
+  }
+  store_.NoteBadReply("models of " + call.actuator_id + ": " + problem);
+  store_.SetModelVersionsProblem(call.actuator_id, problem);
+  VersionsFailed(call.actuator_id, now);
+}
+
+// Asks again after rpc_retry, doubled with every failure in a row up to models_retry_max
+// (an actuator flexidd does not know stays unknown for a while).
+void BusAdapter::VersionsFailed(const std::string& actuator_id, Clock::time_point now) {
+  VersionsFetch& fetch = versions_[actuator_id];
+  fetch.in_flight = false;
+  fetch.wanted = true;
+  fetch.failures = std::min(fetch.failures + 1, 16);
+  const auto pause = std::min<Clock::duration>(options_.rpc_retry * (1 << (fetch.failures - 1)),
+                                               options_.models_retry_max);
+  fetch.not_before = now + pause;
+}
+
+void BusAdapter::RequestVersions(Clock::time_point now) {
+  // Actuators seen for the first time are wanted (VersionsFetch starts so); a page load
+  // wants every actuator again.
+  const uint64_t page_loads = store_.page_loads();
+  const bool page_loaded = page_loads != page_loads_seen_;
+  page_loads_seen_ = page_loads;
+  for (const std::string& id : store_.ActuatorIds()) {
+    VersionsFetch& fetch = versions_[id];
+    if (page_loaded) fetch.wanted = true;
+    if (!fetch.wanted || fetch.in_flight || now < fetch.not_before) continue;
+    fetch.wanted = false;
+    fetch.in_flight = true;
+    SendRequest("models", {{"actuator", id}}, {"models", id, 0, {}});
   }
 }
 
@@ -176,6 +265,8 @@ void BusAdapter::Tick(Clock::time_point now) {
     if (it->second.method == "alerts") {
       alerts_in_flight_ = false;
       alerts_retry_after_ = now + options_.rpc_retry;
+    } else if (it->second.method == "models") {
+      VersionsFailed(it->second.actuator_id, now);
     } else {
       ModelFetch& fetch = models_[it->second.actuator_id];
       fetch.in_flight = false;
@@ -188,6 +279,7 @@ void BusAdapter::Tick(Clock::time_point now) {
     alerts_in_flight_ = true;
     SendRequest("alerts", {{"limit", options_.startup_alerts}}, {"alerts", "", 0, {}});
   }
+  RequestVersions(now);
 }
 
 void BusAdapter::Poll(std::chrono::milliseconds timeout) {

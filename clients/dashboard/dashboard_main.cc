@@ -1,13 +1,13 @@
-// flexid-dashboard: the live web page of flexid's predictions and alerts (DESIGN.md,
-// "Command lines").
+// flexid-dashboard: the live web page of an actuator's samples, flexid's predictions, model
+// versions and alerts (DESIGN.md, "Command lines").
 //
 //   flexid-dashboard [--lcm URL] [--channel-prefix FLEXID] [--listen 127.0.0.1:8080]
 //
-// Subscribes to PREFIX/<actuator>/PREDICTION and PREFIX/ALERT (bus.h; PREFIX is flexidd's
-// channel_prefix), keeps the recent
-// points, alerts and model summaries (live_store.h) and serves the page at / with a
-// server-sent event stream (server.h). The page and uPlot are compiled in: no files and no
-// network are needed at run time.
+// Subscribes to PREFIX/<actuator>/VOLTAGE, DEFLECTION and PREDICTION and PREFIX/ALERT
+// (bus.h; PREFIX is flexidd's channel_prefix), asks flexidd for model summaries and
+// version lists, keeps the recent points, alerts and models (live_store.h) and serves the
+// page at / with a server-sent event stream (server.h). The page and uPlot are compiled in: no
+// files and no network are needed at run time.
 //
 // Prints one line on stdout once it serves: "flexid-dashboard: serving http://HOST:PORT/
 // (LCM URL)" (with --listen HOST:0 the port is the one the system chose). Errors are one
@@ -99,8 +99,9 @@ int RunDashboard(const DashboardArgs& args) {
 
 int main(int argc, char** argv) {
   CLI::App app{
-      "flexid-dashboard: the live web page of flexid's predictions and alerts (voltage, measured "
-      "and predicted deflection, residual, the active model and its fit)"};
+      "flexid-dashboard: the live web page of flexid's actuators (voltage, measured and predicted "
+      "deflection, residual, the active model and its fit, model versions and proposals, "
+      "alerts)"};
   app.set_version_flag("--version", flexid::kVersion);
   flexid::dashboard::DashboardArgs args;
   app.add_option("--lcm", args.lcm_url, "LCM URL of the bus flexidd publishes on")

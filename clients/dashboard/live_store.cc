@@ -1,5 +1,5 @@
 // The dashboard's state and event stream (live_store.h): per-actuator series with
-// decimated batches, alerts, model summaries and the JSON the page reads.
+// decimated batches, alerts, model summaries and versions, and the JSON the page reads.
 #include "clients/dashboard/live_store.h"
 
 #include <algorithm>
@@ -54,10 +54,30 @@ json MembershipsJson(const std::vector<double>& memberships) {
 
 json CountersJson(const Counters& c) {
   return {{"predictions", c.predictions},
+          {"samples", c.samples},
           {"alerts", c.alerts},
           {"bad_messages", c.bad_messages},
           {"out_of_order", c.out_of_order},
-          {"too_many_actuators", c.too_many_actuators}};
+          {"too_many_actuators", c.too_many_actuators},
+          {"bad_replies", c.bad_replies}};
+}
+
+// A problem's text as kept for the page: one line of at most 300 characters (an error
+// from the bus could be anything).
+std::string OneLine(const std::string& text) {
+  constexpr size_t kMaxChars = 300;
+  std::string out = text.substr(0, kMaxChars);
+  std::replace(out.begin(), out.end(), '\n', ' ');
+  if (text.size() > kMaxChars) out += "...";
+  return out;
+}
+
+// Keeps every other point of a buffer that no batch emptied for a long while.
+template <typename Points>
+void Thin(Points* points) {
+  size_t kept = 0;
+  for (size_t i = 0; i < points->size(); i += 2) (*points)[kept++] = (*points)[i];
+  points->resize(kept);
 }
 
 bool SameAlert(const Alert& a, const Alert& b) {
@@ -86,6 +106,8 @@ bool StoreOptions::IsValid(std::string* error) const {
   if (max_alerts == 0) return fail("max_alerts must be > 0");
   if (max_events < 2) return fail("max_events must be >= 2");
   if (restart_gap_us < 0) return fail("restart_gap_us must be >= 0");
+  if (prediction_timeout.count() <= 0) return fail("prediction_timeout must be > 0");
+  if (max_model_versions == 0) return fail("max_model_versions must be > 0");
   return true;
 }
 
@@ -206,7 +228,56 @@ LiveStore::Series* LiveStore::FindOrCreate(const std::string& actuator_id) {
   return &series_.emplace(actuator_id, Series(options_.history_points)).first->second;
 }
 
-AddOutcome LiveStore::AddPrediction(const Prediction& in) {
+LiveStore::Series* LiveStore::Admit(const std::string& actuator_id, bool valid,
+                                    AddOutcome* refused) {
+  if (!valid) {
+    ++counters_.bad_messages;
+    *refused = AddOutcome::kInvalid;
+    return nullptr;
+  }
+  Series* s = FindOrCreate(actuator_id);
+  if (!s) {
+    ++counters_.too_many_actuators;
+    *refused = AddOutcome::kTooManyActuators;
+  }
+  return s;
+}
+
+bool LiveStore::InOrder(Series* s, const std::optional<int64_t>& last_utime, int64_t utime) {
+  if (!last_utime || utime > *last_utime) return true;
+  if (*last_utime - utime <= options_.restart_gap_us) {
+    ++counters_.out_of_order;
+    return false;
+  }
+  Restart(s);
+  return true;
+}
+
+bool LiveStore::PredictionsFlow(const Series& s, Clock::time_point now) const {
+  return s.last_prediction_at && now - *s.last_prediction_at < options_.prediction_timeout;
+}
+
+void LiveStore::Restart(Series* s) {
+  // Far back in time: a new run (a replayed log, a rig restarted at an earlier time).
+  s->history.Clear();
+  s->pending.clear();
+  s->held.clear();
+  s->reset = true;
+  s->has_point = false;
+  s->last_prediction_utime.reset();
+  s->last_deflection_utime.reset();
+}
+
+void LiveStore::AppendPoint(Series* s, const Point& p) {
+  // No batch for a long while: keep every other point.
+  if (s->pending.size() >= options_.max_pending_points) Thin(&s->pending);
+  s->pending.push_back(p);
+  s->latest = p;
+  s->has_point = true;
+  s->last_utime = p.utime;
+}
+
+AddOutcome LiveStore::AddPrediction(const Prediction& in, Clock::time_point now) {
   const Point& p = in.point;
   const bool valid = bus::IsValidId(in.actuator_id) && std::isfinite(p.voltage_V) &&
                      std::isfinite(p.measured_mm) && !std::isinf(p.predicted_mm) &&
@@ -214,40 +285,83 @@ AddOutcome LiveStore::AddPrediction(const Prediction& in) {
                      std::all_of(in.memberships.begin(), in.memberships.end(),
                                  [](double m) { return std::isfinite(m); });
   std::lock_guard lock(mutex_);
-  if (!valid) {
-    ++counters_.bad_messages;
-    return AddOutcome::kInvalid;
-  }
-  Series* s = FindOrCreate(in.actuator_id);
-  if (!s) {
-    ++counters_.too_many_actuators;
-    return AddOutcome::kTooManyActuators;
-  }
+  AddOutcome refused = AddOutcome::kInvalid;
+  Series* s = Admit(in.actuator_id, valid, &refused);
+  if (!s) return refused;
+  if (!InOrder(s, s->last_prediction_utime, p.utime)) return AddOutcome::kOutOfOrder;
+  bool covered = false;
   if (s->has_point && p.utime <= s->last_utime) {
-    if (s->last_utime - p.utime <= options_.restart_gap_us) {
-      ++counters_.out_of_order;
-      return AddOutcome::kOutOfOrder;
-    }
-    // Far back in time: a new run (a replayed log, a rig restarted at an earlier time).
-    s->history.Clear();
-    s->pending.clear();
-    s->reset = true;
+    if (s->last_utime - p.utime > options_.restart_gap_us)
+      Restart(s);
+    else
+      covered = true;  // drawn from the deflection channel before the predictions came
   }
-  if (s->pending.size() >= options_.max_pending_points) {
-    // No batch for a long while: keep every other point.
-    size_t kept = 0;
-    for (size_t i = 0; i < s->pending.size(); i += 2) s->pending[kept++] = s->pending[i];
-    s->pending.resize(kept);
-  }
-  s->pending.push_back(p);
-  s->latest = p;
-  s->has_point = true;
-  s->last_utime = p.utime;
+  // The held samples up to this one are drawn by the predictions.
+  const auto first_later = std::find_if(s->held.begin(), s->held.end(),
+                                        [&](const Point& h) { return h.utime > p.utime; });
+  s->held.erase(s->held.begin(), first_later);
+  s->last_prediction_utime = p.utime;
+  s->last_prediction_at = now;
   s->model_version = in.model_version;
   s->trial_id = in.trial_id;
   s->memberships = in.memberships;
   ++s->received;
   ++counters_.predictions;
+  if (covered) return AddOutcome::kCovered;
+  AppendPoint(s, p);
+  return AddOutcome::kAccepted;
+}
+
+AddOutcome LiveStore::AddDeflection(const DeflectionSample& in, Clock::time_point now) {
+  const bool valid = bus::IsValidId(in.actuator_id) && std::isfinite(in.deflection_mm);
+  std::lock_guard lock(mutex_);
+  AddOutcome refused = AddOutcome::kInvalid;
+  Series* s = Admit(in.actuator_id, valid, &refused);
+  if (!s) return refused;
+  if (!InOrder(s, s->last_deflection_utime, in.utime)) return AddOutcome::kOutOfOrder;
+  s->last_deflection_utime = in.utime;
+  ++s->samples;
+  ++counters_.samples;
+  // The voltage in force at the sample's time.
+  double voltage_V = std::numeric_limits<double>::quiet_NaN();
+  if (s->voltage && s->voltage->utime <= in.utime)
+    voltage_V = s->voltage->voltage_V;
+  else if (s->previous_voltage && s->previous_voltage->utime <= in.utime)
+    voltage_V = s->previous_voltage->voltage_V;
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  const Point point{in.utime, voltage_V, in.deflection_mm, nan, nan};
+  if (PredictionsFlow(*s, now)) {
+    if (s->last_prediction_utime && in.utime <= *s->last_prediction_utime)
+      return AddOutcome::kCovered;  // its prediction came first
+    if (s->held.size() >= options_.max_pending_points) Thin(&s->held);
+    s->held.push_back(point);
+    return AddOutcome::kHeld;
+  }
+  if (s->has_point && in.utime <= s->last_utime) {
+    if (s->last_utime - in.utime <= options_.restart_gap_us) return AddOutcome::kCovered;
+    Restart(s);
+    s->last_deflection_utime = in.utime;
+  }
+  AppendPoint(s, point);
+  return AddOutcome::kAccepted;
+}
+
+AddOutcome LiveStore::AddVoltage(const VoltageSample& in) {
+  const bool valid = bus::IsValidId(in.actuator_id) && std::isfinite(in.voltage_V);
+  std::lock_guard lock(mutex_);
+  AddOutcome refused = AddOutcome::kInvalid;
+  Series* s = Admit(in.actuator_id, valid, &refused);
+  if (!s) return refused;
+  if (s->voltage && in.utime <= s->voltage->utime) {
+    if (s->voltage->utime - in.utime <= options_.restart_gap_us) {
+      ++counters_.out_of_order;
+      return AddOutcome::kOutOfOrder;
+    }
+    s->voltage.reset();  // a new run: the old voltages are not in force in it
+  }
+  s->previous_voltage = std::move(s->voltage);
+  s->voltage = in;
+  ++counters_.samples;
   return AddOutcome::kAccepted;
 }
 
@@ -276,22 +390,86 @@ void LiveStore::SetModel(const json& summary) {
   AppendEvent("model", summary);
 }
 
+void LiveStore::SetModelVersions(const std::string& actuator_id, const json& versions) {
+  if (!versions.is_array()) return;
+  std::lock_guard lock(mutex_);
+  Series* s = FindOrCreate(actuator_id);
+  if (!s) return;
+  json kept = json::array();
+  for (const json& v : versions) {
+    if (kept.size() >= options_.max_model_versions) break;
+    kept.push_back(v);
+  }
+  json event = {{"actuator", actuator_id},
+                {"versions", kept},
+                {"total", versions.size()},
+                {"problem", nullptr}};
+  s->versions = event;
+  AppendEvent("versions", event);
+}
+
+void LiveStore::SetModelVersionsProblem(const std::string& actuator_id,
+                                        const std::string& problem) {
+  std::lock_guard lock(mutex_);
+  Series* s = FindOrCreate(actuator_id);
+  if (!s) return;
+  // A list flexidd gave before stays: it is the best there is.
+  if (s->versions.is_object() && s->versions["versions"].is_array()) return;
+  json event = {{"actuator", actuator_id},
+                {"versions", nullptr},
+                {"total", nullptr},
+                {"problem", OneLine(problem)}};
+  s->versions = event;
+  AppendEvent("versions", event);
+}
+
 void LiveStore::CountBadMessage() {
   std::lock_guard lock(mutex_);
   ++counters_.bad_messages;
 }
 
-size_t LiveStore::FlushBatch() {
+void LiveStore::NoteBadReply(const std::string& problem) {
+  std::lock_guard lock(mutex_);
+  ++counters_.bad_replies;
+  last_problem_ = OneLine(problem);
+}
+
+void LiveStore::NotePageLoad() {
+  std::lock_guard lock(mutex_);
+  ++page_loads_;
+}
+
+uint64_t LiveStore::page_loads() const {
+  std::lock_guard lock(mutex_);
+  return page_loads_;
+}
+
+std::vector<std::string> LiveStore::ActuatorIds() const {
+  std::lock_guard lock(mutex_);
+  std::vector<std::string> ids;
+  ids.reserve(series_.size());
+  for (const auto& entry : series_) ids.push_back(entry.first);
+  return ids;
+}
+
+size_t LiveStore::FlushBatch(Clock::time_point now) {
   std::lock_guard lock(mutex_);
   json actuators = json::array();
   size_t sent = 0;
   for (auto& [id, s] : series_) {
+    if (!s.held.empty() && !PredictionsFlow(s, now)) {
+      // The predictions stopped: the samples they would have drawn are the points now.
+      for (const Point& h : s.held)
+        if (!s.has_point || h.utime > s.last_utime) AppendPoint(&s, h);
+      s.held.clear();
+    }
     if (s.pending.empty() && !s.reset) continue;
     const std::vector<size_t> indices =
         DecimationIndices(s.pending.size(), options_.max_points_per_batch);
     json entry = ColumnsJson(s.pending, indices);
     entry["id"] = id;
     entry["received"] = s.received;
+    entry["samples"] = s.samples;
     entry["reset"] = s.reset;
     entry["model_version"] = s.model_version;
     entry["trial"] = s.trial_id;
@@ -315,19 +493,25 @@ json LiveStore::StateJson() const {
   for (const auto& [id, s] : series_) {
     std::vector<size_t> all(s.history.size());
     for (size_t i = 0; i < all.size(); ++i) all[i] = i;
-    actuators.push_back({{"id", id},
-                         {"received", s.received},
-                         {"model_version", s.model_version},
-                         {"trial", s.trial_id},
-                         {"latest", s.has_point ? PointJson(s.latest) : json(nullptr)},
-                         {"memberships", MembershipsJson(s.memberships)},
-                         {"model", s.model},
-                         {"history", ColumnsJson(s.history, all)}});
+    actuators.push_back(
+        {{"id", id},
+         {"received", s.received},
+         {"samples", s.samples},
+         {"model_version", s.model_version},
+         {"trial", s.trial_id},
+         {"latest", s.has_point ? PointJson(s.latest) : json(nullptr)},
+         {"memberships", MembershipsJson(s.memberships)},
+         {"model", s.model},
+         {"versions", s.versions.is_object() ? s.versions.at("versions") : json()},
+         {"versions_total", s.versions.is_object() ? s.versions.at("total") : json()},
+         {"versions_problem", s.versions.is_object() ? s.versions.at("problem") : json()},
+         {"history", ColumnsJson(s.history, all)}});
   }
   json alerts = json::array();
   for (auto it = alerts_.rbegin(); it != alerts_.rend(); ++it) alerts.push_back(AlertJson(*it));
   return {{"event_id", next_event_id_ - 1},
           {"counters", CountersJson(counters_)},
+          {"last_problem", last_problem_},
           {"actuators", std::move(actuators)},
           {"alerts", std::move(alerts)}};
 }
@@ -335,6 +519,11 @@ json LiveStore::StateJson() const {
 Counters LiveStore::counters() const {
   std::lock_guard lock(mutex_);
   return counters_;
+}
+
+std::string LiveStore::last_problem() const {
+  std::lock_guard lock(mutex_);
+  return last_problem_;
 }
 
 uint64_t LiveStore::last_event_id() const {

@@ -84,6 +84,8 @@ void DashboardServer::Route() {
   }
 
   s.Get("/api/state", [this](const httplib::Request&, httplib::Response& res) {
+    // A page (re)loads: the model version lists are asked again (bus.h).
+    store_.NotePageLoad();
     nlohmann::json state = store_.StateJson();
     state["lcm_url"] = options_.lcm_url;
     state["version"] = kVersion;
@@ -96,8 +98,11 @@ void DashboardServer::Route() {
     const nlohmann::json health = {{"ok", true},
                                    {"streams", active_streams_->load()},
                                    {"predictions", c.predictions},
+                                   {"samples", c.samples},
                                    {"alerts", c.alerts},
-                                   {"bad_messages", c.bad_messages}};
+                                   {"bad_messages", c.bad_messages},
+                                   {"bad_replies", c.bad_replies},
+                                   {"last_problem", store_.last_problem()}};
     res.set_header("Cache-Control", "no-store");
     res.set_content(health.dump(), "application/json");
   });

@@ -4,9 +4,10 @@
 //   GET /                          the page (index.html)
 //   GET /app.js, /app.css          the page's code and style
 //   GET /vendor/uPlot.iife.min.js, /vendor/uPlot.min.css, /vendor/LICENSE   uPlot (MIT)
-//   GET /api/state                 LiveStore::StateJson() plus "lcm_url" and "version"
+//   GET /api/state                 LiveStore::StateJson() plus "lcm_url" and "version"; also
+//                                  tells the bus adapter to ask the model versions again
 //   GET /events?after=ID           text/event-stream of the store's events after ID
-//   GET /healthz                   {"ok": true, "streams", "counters"}
+//   GET /healthz                   {"ok": true, "streams", the counters, "last_problem"}
 //
 // Every response forbids loading anything from elsewhere (Content-Security-Policy
 // default-src 'self'). Bound to a loopback address, requests must name a loopback host

@@ -3,12 +3,16 @@
 # dashboard_e2e). Usage: tests/dashboard/run_e2e.sh BUILD_DIR
 #
 # As deploy/demo, on a private LCM port (udpm://239.255.76.67:<random>?ttl=0, this host
-# only): flexidd on a temporary database, the dashboard on 127.0.0.1 (a free port), the
-# virtual rig records a 2 V and an 8 V trial, flexidd identifies a model from them; then
-# e2e.mjs opens the page in Chromium while the rig plays a fresh trial (the charts must
-# update and the model line show the version) and a trial with back-relaxation (an alert
-# must appear). Screenshot: BUILD_DIR/test-artifacts/dashboard.png, and also
-# $FLEXID_DOCS_SCREENSHOT when set.
+# only): flexidd on a temporary database, knowing actuators S1 and S2 and refusing others
+# (so that S3's samples get no prediction at all), the dashboard on 127.0.0.1 (a free
+# port), the virtual rig records a 2 V and an 8 V trial of S1, flexidd identifies a model
+# from them; then e2e.mjs opens the page in Chromium while the rig plays a fresh trial (the
+# charts must update and the model line show the version), S2 (no model) and S3 (unknown
+# to flexidd) publish (their charts must grow from the samples alone), S1 plays a trial
+# with back-relaxation (an alert must appear), `flexid diagnose --propose` stores the
+# augmented model (the page must list it as a proposal) and `flexid models activate`
+# activates it (the page must show it active). Screenshot:
+# BUILD_DIR/test-artifacts/dashboard.png, and also $FLEXID_DOCS_SCREENSHOT when set.
 #
 # Exit 0 passed, 1 failed, 77 skipped (no /usr/bin/chromium or no
 # tests/dashboard/node_modules/playwright-core: `npm ci` in tests/dashboard).
@@ -54,8 +58,10 @@ lcm="udpm://239.255.76.67:$port?ttl=0"
 flexid=("$build/clients/flexid" --lcm "$lcm")
 echo "dashboard_e2e: bus $lcm, scratch $tmp"
 
-"$build/daemon/flexidd" --db "$tmp/t.db" --lcm "$lcm" --log-file "$tmp/flexidd.log" \
-  > "$tmp/flexidd.out" 2>&1 &
+printf '%s\n' 'accept_unknown_actuators = false' '[[actuators]]' 'id = "S1"' \
+  '[[actuators]]' 'id = "S2"' > "$tmp/flexidd.toml"
+"$build/daemon/flexidd" --config "$tmp/flexidd.toml" --db "$tmp/t.db" --lcm "$lcm" \
+  --log-file "$tmp/flexidd.log" > "$tmp/flexidd.out" 2>&1 &
 pids+=($!)
 for _ in $(seq 100); do "${flexid[@]}" rpc status --timeout 0.2 > /dev/null 2>&1 && break; sleep 0.1; done
 "${flexid[@]}" rpc status --timeout 5 > /dev/null || { cat "$tmp/flexidd.out" >&2; exit 1; }
@@ -96,7 +102,8 @@ version="$(node -e "const r = JSON.parse(require('fs').readFileSync('$tmp/identi
 echo "dashboard_e2e: model v$version active"
 
 mkdir -p "$build/test-artifacts"
-export DASHBOARD_URL="$url" RIG="$build/clients/flexid-rig" LCM_URL="$lcm" \
+export DASHBOARD_URL="$url" RIG="$build/clients/flexid-rig" FLEXID="$build/clients/flexid" \
+  LCM_URL="$lcm" \
   RIG_START_UTIME="$start" MODEL_VERSION="$version" CHROMIUM="$chromium" \
   SCREENSHOT="$build/test-artifacts/dashboard.png"
 status=0

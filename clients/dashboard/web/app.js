@@ -1,21 +1,30 @@
 // flexid-dashboard's page: one card per actuator with uPlot charts of voltage, measured and
 // predicted deflection and residual over the last minutes of message time, the active
-// model and its fit, and the alerts as they arrive.
+// model and its fit, the actuator's model versions (identified and proposed), and the
+// alerts as they arrive. An actuator without predictions (no model yet) shows its voltage
+// and measured deflection; the predicted line and the residual chart appear once
+// predictions flow.
 //
 // Data flow: GET /api/state (a snapshot, with the id of the last event it contains), then
 // an EventSource on /events?after=ID: "points" (batched, decimated points of every
-// actuator), "alert", "model", and "resync" (the stream fell behind: load the snapshot
-// again). When the stream breaks (the server restarted), the page loads the snapshot again
-// and reopens the stream, waiting 1 s, then up to 10 s, between tries.
+// actuator), "alert", "model", "versions" (an actuator's model version list), and
+// "resync" (the stream fell behind: load the snapshot again). When the stream breaks (the
+// server restarted), the page loads the snapshot again and reopens the stream, waiting
+// 1 s, then up to 10 s, between tries.
 //
 // Hooks for tests: .card[data-actuator=ID] with data-points (points drawn so far),
-// data-received (predictions the server took), data-model-version; .alert[data-kind] in
-// each card and in #alerts; #connection[data-state] is connecting, live or reconnecting.
+// data-chart-points (measured points in the deflection chart's data now), data-received
+// (predictions the server took), data-samples (deflection samples it took),
+// data-predicted ("true" once predictions show), data-model-version; in each card
+// .versions[data-loaded] holding li.version[data-version][data-active][data-kind
+// identified|proposed][data-parent]; .alert[data-kind] in each card and in #alerts;
+// #connection[data-state] is connecting, live or reconnecting.
 'use strict';
 
 (() => {
   const MAX_POINTS = 20000;  // per series, whatever the window
   const MAX_ALERTS = 100;    // per list
+  const MAX_VERSIONS = 6;    // model versions listed per card, newest first
   const CHART_HEIGHT = 150;
   const GAP_S = 20;  // a pause this long in message time breaks the lines (no data, no line)
   const COLORS = {
@@ -84,6 +93,9 @@
     root.dataset.actuator = id;
     root.dataset.points = '0';
     root.dataset.received = '0';
+    root.dataset.samples = '0';
+    root.dataset.chartPoints = '0';
+    root.dataset.predicted = 'false';
     root.dataset.modelVersion = '0';
 
     const head = el('header', 'card-head');
@@ -92,9 +104,12 @@
     const counter = el('span', 'points', '0 points');
     head.append(trial, counter);
 
-    const readout = el('div', 'readout', 'no prediction yet');
+    const readout = el('div', 'readout', 'no sample yet');
     const model = el('div', 'model', 'model: none yet');
     model.dataset.modelVersion = '0';
+    const versions = el('div', 'versions');
+    versions.dataset.loaded = 'false';
+    versions.append(el('span', 'versions-none', 'model versions: asking flexidd…'));
 
     const charts = el('div', 'charts');
     const boxes = {};
@@ -112,7 +127,7 @@
     const none = el('li', 'none', 'none');
     alerts.append(none);
 
-    root.append(head, readout, model, charts, alertsHead, alerts);
+    root.append(head, readout, model, versions, charts, alertsHead, alerts);
     const list = $('actuators');
     // Cards in id order.
     const after = [...list.querySelectorAll('.card')].find((c) => c.dataset.actuator > id);
@@ -120,9 +135,10 @@
     $('empty').hidden = true;
 
     const card = {
-      id, root, trial, counter, readout, model, alerts, none,
+      id, root, trial, counter, readout, model, versions, alerts, none,
       data: {t: [], v: [], measured: [], predicted: [], residual: []},
       points: 0,
+      predicted: false,  // predictions seen: the predicted line and the residual chart show
       modelInfo: null,
       modelVersion: 0,
       dirty: true,
@@ -139,7 +155,26 @@
       residual: makePlot(boxes.residual, 'mm', [{label: 'residual mm', color: COLORS.residual}]),
     };
     cards.set(id, card);
+    showPredicted(card);
+    showModel(card);
     return card;
+  }
+
+  // Before any prediction the card charts what the source measures: the residual chart and
+  // the predicted line stay hidden rather than empty.
+  function showPredicted(c) {
+    c.root.dataset.predicted = String(c.predicted);
+    c.boxes.residual.parentElement.hidden = !c.predicted;
+    c.plots.deflection.setSeries(2, {show: c.predicted});
+    if (c.predicted) resizeAll();
+  }
+
+  function notePredicted(c, cols, modelVersion) {
+    if (c.predicted) return;
+    if (modelVersion > 0 || cols.predicted_mm.some((x) => x !== null && x !== undefined)) {
+      c.predicted = true;
+      showPredicted(c);
+    }
   }
 
   function card(id) {
@@ -197,6 +232,9 @@
       c.plots.deflection.setData([d.t, d.measured, d.predicted]);
       c.plots.residual.setData([d.t, d.residual]);
       c.root.dataset.points = String(c.points);
+      let measured = 0;
+      for (const x of d.measured) if (x !== null) measured++;
+      c.root.dataset.chartPoints = String(measured);
       c.counter.textContent = c.points.toLocaleString() + ' points';
     }
   }
@@ -211,18 +249,19 @@
 
   // ---- readouts, model, alerts ------------------------------------------------------
 
-  function setReadout(c, latest, received, trialId, memberships) {
-    if (received !== undefined) {
-      c.root.dataset.received = String(received);
-    }
+  function setReadout(c, latest, received, samples, trialId, memberships) {
+    if (received !== undefined) c.root.dataset.received = String(received);
+    if (samples !== undefined) c.root.dataset.samples = String(samples);
     c.trial.textContent = trialId ? 'trial ' + trialId : 'no trial';
     if (!latest) return;
     const parts = [
       ['V', fmt(latest.voltage_V, 3) + ' V'],
       ['measured', fmt(latest.measured_mm, 4) + ' mm'],
-      ['predicted', fmt(latest.predicted_mm, 4) + ' mm'],
-      ['residual', fmt(latest.residual_mm, 3) + ' mm'],
     ];
+    if (c.predicted) {
+      parts.push(['predicted', fmt(latest.predicted_mm, 4) + ' mm']);
+      parts.push(['residual', fmt(latest.residual_mm, 3) + ' mm']);
+    }
     if (memberships && memberships.length > 1)
       parts.push(['rules', memberships.map((m) => fmt(m, 2)).join(' / ')]);
     c.readout.replaceChildren();
@@ -253,7 +292,8 @@
     c.model.dataset.modelVersion = String(version);
     c.model.replaceChildren();
     if (!version) {
-      c.model.append(el('span', 'model-none', 'no model yet: predictions start once flexidd identifies one'));
+      c.model.append(el('span', 'model-none',
+        'no model yet: measured voltage and deflection only; predictions start once a model is active'));
       return;
     }
     c.model.append(el('span', 'model-version', 'model v' + version));
@@ -269,6 +309,64 @@
     else if (m.kind === 'tf') bits.push('one transfer function');
     if (m.trials && m.trials.length) bits.push('trials ' + m.trials.join(', '));
     for (const b of bits) c.model.append(el('span', 'model-detail', b));
+  }
+
+  // One model version: "v4 active · proposed from v3 · back relaxation (fraction 0.21 ±
+  // 0.03, tau_s 31 ± 4) · held-out RMSE 0.085 → 0.021 mm, ×4.05 · trial 12".
+  function versionItem(v) {
+    const lineage = v.lineage || null;  // missing (flexidd before proposals): identified
+    const li = el('li', 'version' + (v.active ? ' active' : '') + (lineage ? ' proposed' : ''));
+    li.dataset.version = String(v.version);
+    li.dataset.active = String(Boolean(v.active));
+    li.dataset.kind = lineage ? 'proposed' : 'identified';
+    li.append(el('span', 'version-number', 'v' + v.version));
+    if (v.active) li.append(el('span', 'version-active', 'active'));
+    const bits = [];
+    if (lineage) {
+      li.dataset.parent = String(lineage.parent_version);
+      const by = lineage.proposed_by ? ' by ' + lineage.proposed_by : '';
+      bits.push(lineage.parent_version > 0 ? 'proposed from v' + lineage.parent_version + by
+        : 'proposed' + by + ' on a baseline identified on its trials');
+      const effects = (lineage.effects || []).map((e) => {
+        const params = Object.entries(e.params || {}).map(([name, p]) =>
+          name + ' ' + fmt(p.value, 3) + (p.half_width_95 !== null && p.half_width_95 !== undefined ? ' ± ' + fmt(p.half_width_95, 2) : ''));
+        return e.effect.replace(/_/g, ' ') + (params.length ? ' (' + params.join(', ') + ')' : '');
+      });
+      if (effects.length) bits.push(effects.join(' + '));
+      if (lineage.heldout_rmse_before_mm !== null && lineage.heldout_rmse_after_mm !== null)
+        bits.push('held-out RMSE ' + fmt(lineage.heldout_rmse_before_mm, 3) + ' → ' +
+          fmt(lineage.heldout_rmse_after_mm, 3) + ' mm' +
+          (lineage.heldout_gain !== null ? ', ×' + fmt(lineage.heldout_gain, 3) : ''));
+      if (lineage.trials && lineage.trials.length)
+        bits.push((lineage.trials.length > 1 ? 'trials ' : 'trial ') + lineage.trials.join(', '));
+    } else {
+      bits.push('identified');
+      if (v.trials && v.trials.length) bits.push((v.trials.length > 1 ? 'trials ' : 'trial ') + v.trials.join(', '));
+      if (v.fit && v.fit.fit_percent !== null) bits.push('fit ' + fmt(v.fit.fit_percent, 4) + ' %');
+    }
+    bits.forEach((b, i) => li.append(el('span', i === 0 ? 'version-detail version-origin' : 'version-detail', b)));
+    return li;
+  }
+
+  function showVersions(c, versions, total, problem) {
+    const box = c.versions;
+    box.replaceChildren();
+    if (!Array.isArray(versions)) {
+      box.dataset.loaded = 'false';
+      box.append(el('span', 'versions-none', 'model versions: ' + (problem || 'asking flexidd…')));
+      return;
+    }
+    box.dataset.loaded = 'true';
+    if (versions.length === 0) {
+      box.append(el('span', 'versions-none', 'model versions: none stored yet'));
+      return;
+    }
+    box.append(el('div', 'versions-head', 'Model versions'));
+    const list = el('ol', 'version-list');
+    for (const v of versions.slice(0, MAX_VERSIONS)) list.append(versionItem(v));
+    box.append(list);
+    const older = (total || versions.length) - Math.min(versions.length, MAX_VERSIONS);
+    if (older > 0) box.append(el('div', 'versions-more', older + ' older (flexid models list --actuator ' + c.id + ')'));
   }
 
   function alertItem(a, withActuator) {
@@ -316,10 +414,12 @@
   function showCounters(counters) {
     if (!counters) return;
     $('stats').textContent =
-      'predictions ' + counters.predictions.toLocaleString() +
+      'samples ' + (counters.samples || 0).toLocaleString() +
+      ' · predictions ' + counters.predictions.toLocaleString() +
       ' · alerts ' + counters.alerts.toLocaleString() +
       ' · bad messages ' + counters.bad_messages.toLocaleString() +
-      (counters.out_of_order ? ' · out of order ' + counters.out_of_order.toLocaleString() : '');
+      (counters.out_of_order ? ' · out of order ' + counters.out_of_order.toLocaleString() : '') +
+      (counters.bad_replies ? ' · bad replies from flexidd ' + counters.bad_replies.toLocaleString() : '');
   }
 
   // ---- the stream ---------------------------------------------------------------------
@@ -339,10 +439,12 @@
       clearData(c);
       c.points = 0;
       appendColumns(c, a.history);
+      notePredicted(c, a.history, a.model_version);
       c.modelVersion = a.model_version;
       c.modelInfo = a.model;
       showModel(c);
-      setReadout(c, a.latest, a.received, a.trial, a.memberships);
+      showVersions(c, a.versions, a.versions_total, a.versions_problem);
+      setReadout(c, a.latest, a.received, a.samples, a.trial, a.memberships);
       c.alerts.querySelectorAll('.alert').forEach((n) => n.remove());
       c.none.hidden = false;
     }
@@ -352,6 +454,7 @@
     $('alert-count').textContent = String($('alerts').querySelectorAll('.alert').length);
     $('empty').hidden = cards.size > 0;
     showCounters(state.counters);
+    $('stats').title = state.last_problem ? 'last problem: ' + state.last_problem : '';
     scheduleDraw();
   }
 
@@ -360,7 +463,8 @@
       const c = card(a.id);
       if (a.reset) clearData(c);
       appendColumns(c, a);
-      setReadout(c, lastOf(a), a.received, a.trial, a.memberships);
+      notePredicted(c, a, a.model_version);
+      setReadout(c, lastOf(a), a.received, a.samples, a.trial, a.memberships);
       if (a.model_version !== c.modelVersion) {
         c.modelVersion = a.model_version;
         showModel(c);
@@ -411,6 +515,10 @@
         source.addEventListener('points', (e) => onPoints(JSON.parse(e.data)));
         source.addEventListener('alert', (e) => addAlert(JSON.parse(e.data), true));
         source.addEventListener('model', (e) => onModel(JSON.parse(e.data)));
+        source.addEventListener('versions', (e) => {
+          const v = JSON.parse(e.data);
+          showVersions(card(v.actuator), v.versions, v.total, v.problem);
+        });
         source.addEventListener('resync', () => reconnect(0));
         source.onerror = () => reconnect(retryMs);
       })
