@@ -10,6 +10,7 @@
 #include "model/core/metrics.h"
 #include "model/core/model_file.h"
 #include "model/diagnose/effects.h"
+#include "storage/record_json.h"
 
 namespace flexid::daemon {
 namespace {
@@ -84,14 +85,8 @@ std::optional<storage::ModelRecord> ProposalOf(const ProposalSource& source) {
   return record;
 }
 
-nlohmann::json LineageOf(const storage::ModelRecord& record) {
-  if (record.lineage_json.empty()) return nullptr;
-  nlohmann::json lineage = nlohmann::json::parse(record.lineage_json, nullptr, false);
-  return lineage.is_object() ? lineage : nlohmann::json(nullptr);
-}
-
 std::string ProposalWords(const storage::ModelRecord& proposal) {
-  const nlohmann::json lineage = LineageOf(proposal);
+  const nlohmann::json lineage = storage::LineageJson(proposal);
   if (!lineage.is_object()) return "model version " + std::to_string(proposal.version);
   std::string effects;
   for (const nlohmann::json& e : lineage.value("effects", nlohmann::json::array()))

@@ -43,10 +43,6 @@ struct ProposalSource {
 // of its range, an accruing effect without its scale): nothing is stored then.
 std::optional<storage::ModelRecord> ProposalOf(const ProposalSource& source);
 
-// The lineage of a stored record: the object, or null for an identified model (or one
-// whose lineage does not parse).
-nlohmann::json LineageOf(const storage::ModelRecord& record);
-
 // One line about a proposal for alerts and logs: "model version 5 proposed (version 4 with
 // back_relaxation): held-out RMSE 0.085 -> 0.021 mm, 4.0 times smaller, on trial 12".
 std::string ProposalWords(const storage::ModelRecord& proposal);

@@ -236,7 +236,7 @@ RpcOutcome Service::RpcModelActivate(const flexid::rpc_request_t& request,
   }
   // A proposal is its parent with effects: once another version is active, it is stale
   // (its effects were fitted against a model no longer in use).
-  const nlohmann::json lineage = LineageOf(*record);
+  const nlohmann::json lineage = storage::LineageJson(*record);
   const int64_t parent = lineage.is_object() ? lineage.value("parent_version", int64_t{0}) : 0;
   if (parent > 0 && !record->active) {
     const auto active = db.ActiveModel(state->info.id);

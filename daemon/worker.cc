@@ -95,7 +95,8 @@ DiagnosisResult RunDiagnosis(const DiagnosisJob& job, RpcContext request) {
         result.proposal = ProposalOf(
             {job.actuator_id, &diagnosis, &recordings, active ? &*active : nullptr, job.trial_ids,
              storage::HashSamples(all), job.propose_by, bus::WallClockUtime()});
-        const nlohmann::json lineage = result.proposal ? LineageOf(*result.proposal) : nullptr;
+        const nlohmann::json lineage =
+            result.proposal ? storage::LineageJson(*result.proposal) : nullptr;
         result.adopt = job.adopt_min_gain > 0 && lineage.is_object() &&
                        lineage.value("heldout_gain", 0.0) >= job.adopt_min_gain;
       } catch (const std::exception& e) {

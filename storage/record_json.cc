@@ -9,13 +9,6 @@ nlohmann::json FiniteOrNull(double value) {
   return std::isfinite(value) ? nlohmann::json(value) : nlohmann::json(nullptr);
 }
 
-// A proposal's lineage as stored (an object), or null for an identified model.
-nlohmann::json Lineage(const ModelRecord& model) {
-  if (model.lineage_json.empty()) return nullptr;
-  nlohmann::json lineage = nlohmann::json::parse(model.lineage_json, nullptr, false);
-  return lineage.is_object() ? lineage : nlohmann::json(nullptr);
-}
-
 }  // namespace
 
 nlohmann::json TrialJson(const Trial& trial) {
@@ -41,6 +34,12 @@ nlohmann::json AlertJson(const AlertRecord& alert) {
           {"text", alert.text}};
 }
 
+nlohmann::json LineageJson(const ModelRecord& model) {
+  if (model.lineage_json.empty()) return nullptr;
+  nlohmann::json lineage = nlohmann::json::parse(model.lineage_json, nullptr, false);
+  return lineage.is_object() ? lineage : nlohmann::json(nullptr);
+}
+
 nlohmann::json ModelSummaryJson(const ModelRecord& model) {
   nlohmann::json fit = model.fit_json.empty()
                            ? nlohmann::json(nullptr)
@@ -54,7 +53,7 @@ nlohmann::json ModelSummaryJson(const ModelRecord& model) {
           {"samples_hash", model.samples_hash},
           {"flexid_version", model.flexid_version},
           {"fit", fit},
-          {"lineage", Lineage(model)}};
+          {"lineage", LineageJson(model)}};
 }
 
 nlohmann::json SamplesPageJson(const Trial& trial, int64_t offset,
