@@ -30,6 +30,7 @@
 #include <utility>
 #include <vector>
 
+#include "bus/lcm_url.h"
 #include "child_process.h"
 #include "daemon/daemon.h"
 #include "lcmtypes/message_auth.h"
@@ -77,7 +78,10 @@ class Bus {
  public:
   using Clock = std::chrono::steady_clock;
 
-  explicit Bus(const std::string& url, bool with_predictions) : lcm_(url) {
+  // With the daemon's 8 MiB receive buffer (as far as the kernel allows), so that a burst
+  // of samples does not push the test's own alerts and replies out in transit.
+  explicit Bus(const std::string& url, bool with_predictions)
+      : lcm_(bus::WithReceiveBuffer(url, 8388608)) {
     if (!lcm_.good()) return;
     lcm_.subscribeFunction("FLEXID/STATUS", &Bus::OnStatus, this)->setQueueCapacity(1000);
     lcm_.subscribeFunction("FLEXID/RPC/REPLY/.*", &Bus::OnReply, this)->setQueueCapacity(1000);
