@@ -55,25 +55,32 @@ class Listener {
     const auto end = std::chrono::steady_clock::now() + duration;
     while (std::chrono::steady_clock::now() < end) lcm_.handleTimeout(20);
   }
-  // Sends a request and waits for its reply.
+  // Sends a request and waits for its reply. A busy worker (the policy's own diagnosis of
+  // a trial that raised an alert, [policy] on_alert = diagnose) is asked again within the
+  // timeout, as the command line does.
   std::optional<flexid::rpc_reply_t> Call(const std::string& method, const nlohmann::json& args,
                                           std::chrono::seconds timeout) {
-    flexid::rpc_request_t request;
-    request.request_id = "r" + std::to_string(++requests_);
-    request.client_id = "daemon_test";
-    request.method = method;
-    request.args_json = args.dump();
-    if (key && auth::ChangesData(method)) {  // signed with the daemon's key
-      request.utime = bus::WallClockUtime();
-      auth::Sign(*key, &request);
-    }
-    reply_.reset();
-    lcm_.publish("FLEXID/RPC/REQUEST", &request);
     const auto end = std::chrono::steady_clock::now() + timeout;
-    while (std::chrono::steady_clock::now() < end &&
-           (!reply_ || reply_->request_id != request.request_id))
-      lcm_.handleTimeout(20);
-    return reply_;
+    while (true) {
+      flexid::rpc_request_t request;
+      request.request_id = "r" + std::to_string(++requests_);
+      request.client_id = "daemon_test";
+      request.method = method;
+      request.args_json = args.dump();
+      if (key && auth::ChangesData(method)) {  // signed with the daemon's key
+        request.utime = bus::WallClockUtime();
+        auth::Sign(*key, &request);
+      }
+      reply_.reset();
+      lcm_.publish("FLEXID/RPC/REQUEST", &request);
+      while (std::chrono::steady_clock::now() < end &&
+             (!reply_ || reply_->request_id != request.request_id))
+        lcm_.handleTimeout(20);
+      if (!reply_ || reply_->status != flexid::rpc_reply_t::kBusy ||
+          std::chrono::steady_clock::now() >= end)
+        return reply_;
+      Pump(std::chrono::milliseconds(200));
+    }
   }
   std::vector<flexid::prediction_t> predictions;
   std::vector<flexid::alert_t> alerts;
