@@ -330,5 +330,40 @@ TEST(DiagnoseAcceptance, SameRecordingSameDiagnosis) {
                       model::Diagnose(free_recording, std::nullopt));
 }
 
+// Without a model a named effect must explain a share of the held-out misfit beyond the
+// noise (DiagnoseOptions::min_share_of_misfit): a sensor drift at 6 times the noise is
+// named with the default tenth; asked to explain all of it (which no effect does, the
+// noise staying), the same candidate is an unexplained misfit, reported where it acts.
+TEST(DiagnoseAcceptance, WithoutModelAnEffectThatExplainsTooLittleIsAMisfit) {
+  LabRun run =
+      MakeRun(kSquare, LabPhysicsPlant(), LabEffect::kSensorDrift, 5003, WithoutModelOptions());
+  ScaleEffectToNoise(&run, 6.0);
+  const model::Recording recording = Record(run);
+  const model::Diagnosis named = model::Diagnose(recording, std::nullopt);
+  ASSERT_EQ(named.verdict, "sensor_drift");
+  EXPECT_TRUE(named.unexplained.empty());
+
+  model::DiagnoseOptions strict;
+  strict.min_share_of_misfit = 1.0;
+  const model::Diagnosis misfit = model::Diagnose(recording, std::nullopt, strict);
+  EXPECT_EQ(misfit.verdict, "none");
+  EXPECT_TRUE(misfit.findings.empty());
+  bool reported = false;
+  for (const model::Misfit& m : misfit.unexplained)
+    if (m.resembles == "sensor_drift") {
+      reported = true;
+      EXPECT_FALSE(m.where.empty());
+      EXPECT_NE(m.explanation.find("of the held-out misfit beyond the noise"), std::string::npos)
+          << m.explanation;
+    }
+  EXPECT_TRUE(reported) << "the drift is not reported as an unexplained misfit";
+
+  for (double share : {-0.1, 1.5}) {
+    model::DiagnoseOptions wrong;
+    wrong.min_share_of_misfit = share;
+    EXPECT_THROW(model::Diagnose(recording, std::nullopt, wrong), std::invalid_argument) << share;
+  }
+}
+
 }  // namespace
 }  // namespace flexid::testing

@@ -418,6 +418,35 @@ struct Diagnoser {
     }
   }
 
+  // Why a candidate that passed every test of the evidence is not a named effect ("" if
+  // it is one). With a trusted model, the 95 % interval of how much of it there is must
+  // exclude none (SizeDetermined). Without one, the likelihood ratio against the refitted
+  // baseline was the profile test of that, and the effect must also explain at least
+  // DiagnoseOptions::min_share_of_misfit of what the model misses on the held-out samples
+  // beyond the noise: next to a misfit many times its size, an effect's small gain may be
+  // that misfit taking its shape (on a HASEL recording whose baseline misses by 30 times
+  // the noise, a "drift" whose every parameter's interval included 0 explained 7 %).
+  std::string Undetermined(const FitResult& fit, const std::vector<double>& current_r,
+                           const CandidateReport& report) const {
+    std::string why;
+    if (trusted_model) {
+      std::string size;
+      if (!SizeDetermined(fit.model.effects.back(), fit.covariance, fit.null_space, data.duration_s,
+                          data.abs_levels_V.empty() ? data.max_abs_V : data.abs_levels_V.back(),
+                          &size))
+        why = "its size is not determined (" + size + ")";
+      return why;
+    }
+    const double before_mm = RmsOver(current_r, data.heldout);
+    const double misfit = before_mm * before_mm - data.noise_mm * data.noise_mm;
+    const double gained = before_mm * before_mm - report.heldout_rmse_mm * report.heldout_rmse_mm;
+    if (misfit > 0.0 && gained < options.min_share_of_misfit * misfit)
+      why = Format("it explains %.0f %% of the held-out misfit beyond the noise",
+                   100.0 * gained / misfit) +
+            Format(" (%.0f %% needed)", 100.0 * options.min_share_of_misfit);
+    return why;
+  }
+
   // 5. The tests of one fitted candidate against the current model: claimed, or why not.
   // A candidate that passes all but the size test is also an unexplained misfit.
   CandidateReport Judge(EffectKind fitted_kind, const FitResult& fit, int round) {
@@ -483,20 +512,16 @@ struct Diagnoser {
     } else if (report.effect_rms_mm < options.min_effect_to_noise * data.noise_mm) {
       report.reason = "real but negligible: adds " + Mm(report.effect_rms_mm) +
                       Format(", under %.2g times the noise", options.min_effect_to_noise);
-    } else if (std::string size;
-               trusted_model &&
-               !SizeDetermined(
-                   fit.model.effects.back(), fit.covariance, fit.null_space, data.duration_s,
-                   data.abs_levels_V.empty() ? data.max_abs_V : data.abs_levels_V.back(), &size)) {
+    } else if (const std::string undetermined = Undetermined(fit, current_r, report);
+               !undetermined.empty()) {
       // It explains the data, but not as this effect: an unexplained misfit, where it is.
-      report.reason =
-          "its size is not determined (" + size + "): an unexplained misfit, not a named effect";
+      report.reason = undetermined + ": an unexplained misfit, not a named effect";
       Misfit misfit;
       misfit.resembles = report.name;
       misfit.rms_mm = report.effect_rms_mm;
       misfit.where = WhereItActs(data, delta, report.kind);
       misfit.explanation = "a misfit of " + Mm(report.effect_rms_mm) + " that " + report.name +
-                           " would explain, but its size is not determined (" + size + ")";
+                           " would explain, but " + undetermined;
       result.unexplained.push_back(std::move(misfit));
     } else {
       report.claimed = true;
@@ -615,7 +640,8 @@ Diagnosis Diagnose(const std::vector<Recording>& recordings,
   if (!(options.heldout_blocks >= 1 && options.heldout_blocks <= 20 &&
         options.heldout_fraction > 0 && options.heldout_fraction <= 0.5 &&
         options.false_alarm_rate > 0 && options.false_alarm_rate < 1 &&
-        options.min_effect_to_noise >= 0 && options.max_effects >= 1))
+        options.min_effect_to_noise >= 0 && options.min_share_of_misfit >= 0 &&
+        options.min_share_of_misfit <= 1 && options.max_effects >= 1))
     throw std::invalid_argument("diagnosis options out of range");
   Diagnoser diagnoser(recordings, trusted_model, options);
   if (diagnoser.n < 200)

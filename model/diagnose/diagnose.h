@@ -57,8 +57,10 @@
 //       - its size is determined: with a trusted model, the 95 % interval (delta method on
 //         the fit's covariance) of how much of it there is excludes none; without one, the
 //         likelihood ratio against the refitted baseline is the profile test of size =
-//         none. A candidate that passes all but this is an unexplained misfit (Misfit),
-//         reported where it is, never named.
+//         none, and the effect must explain at least min_share_of_misfit of the held-out
+//         misfit beyond the noise (next to a misfit many times its size, a small gain may be
+//         that misfit taking the effect's shape). A candidate that passes all but this is
+//         an unexplained misfit (Misfit), reported where it is, never named.
 //     Among claimed candidates the verdict is, with a trusted model, the one with the lowest
 //     information criterion on the training samples, BIC = n_eff ln(SSE / n) + k ln(n_eff);
 //     without one, the lowest held-out RMSE (each candidate brings its own refit). One more
@@ -168,6 +170,9 @@ struct DiagnoseOptions {
   double heldout_fraction = 0.3;   // of the duration, in (0, 0.5]
   double false_alarm_rate = 1e-3;  // per recording, split over the candidates
   double min_effect_to_noise = 0.25;
+  // Without a trusted model: the least share of the held-out misfit beyond the noise
+  // (RMSE^2 - noise^2) a named effect must explain, in [0, 1].
+  double min_share_of_misfit = 0.1;
   int max_effects = 2;
   // Effects already part of the trusted model (its file's augmentations): applied to the
   // baseline as given, never refitted.
