@@ -287,6 +287,25 @@ TEST(SeveralDaemons, ThreeDaemonsShareOneBus) {
   EXPECT_NE(ambiguous.err.find("is claimed by lab-a and lab-c"), std::string::npos)
       << ambiguous.err;
 
+  // Keys by daemon: --key-file ID=PATH signs for that daemon only. lab-a's key given as
+  // lab-b's is refused by lab-b, and nothing starts.
+  const std::string plain = kFlexid + " --lcm '" + lab.url() + "' ";
+  auto key_of = [&](const std::string& id) {
+    return "'" + (lab.keys() / (id + ".key")).string() + "'";
+  };
+  ProcessResult keyed =
+      RunCommand(plain + "--key-file lab-b=" + key_of("lab-a") + " trials start --actuator S2",
+                 scratch.path());
+  EXPECT_EQ(keyed.exit_code, 1) << keyed.out;
+  EXPECT_NE(keyed.err.find("lab-b: not authorised: bad signature"), std::string::npos) << keyed.err;
+  keyed = RunCommand(plain + "--key-file lab-a=" + key_of("lab-a") + " --key-file lab-b=" +
+                         key_of("lab-b") + " trials start --actuator S2 --json",
+                     scratch.path());
+  ASSERT_EQ(keyed.exit_code, 0) << keyed.err;
+  keyed = RunCommand(plain + "--key-file lab-b=" + key_of("lab-b") + " trials stop --actuator S2",
+                     scratch.path());
+  EXPECT_EQ(keyed.exit_code, 0) << keyed.err;
+
   // The dashboard: every daemon's actuators on one page, each naming its daemon; S2's model
   // versions from its owner.
   ASSERT_TRUE(Eventually(
