@@ -55,6 +55,7 @@ std::string Channels::Prediction(std::string_view actuator_id) const {
 }
 std::string Channels::Alert() const { return Named("", "ALERT"); }
 std::string Channels::Status() const { return Named("", "STATUS"); }
+std::string Channels::Ownership() const { return Named("", "OWNERSHIP"); }
 std::string Channels::TrialControl() const { return Named("", "TRIAL"); }
 std::string Channels::RpcRequest() const { return Named("RPC", "REQUEST"); }
 std::string Channels::RpcReply(std::string_view client_id) const {

@@ -6,6 +6,8 @@
 //   PREFIX/<actuator>/PREDICTION  prediction_t          flexidd -> clients
 //   PREFIX/ALERT                  alert_t               flexidd -> clients
 //   PREFIX/STATUS                 status_t              flexidd -> clients, once a second
+//   PREFIX/OWNERSHIP              ownership_t           flexidd -> flexidd, clients: its
+//                                                       actuators and the daemons it heard
 //   PREFIX/TRIAL                  trial_control2_t      rig, CLI -> flexidd (signed)
 //   PREFIX/RPC/REQUEST            rpc_request_t         clients -> flexidd
 //   PREFIX/RPC/REPLY/<client>     rpc_reply_t           flexidd -> that client
@@ -49,6 +51,7 @@ class Channels {
   std::string Prediction(std::string_view actuator_id) const;
   std::string Alert() const;
   std::string Status() const;
+  std::string Ownership() const;
   std::string TrialControl() const;
   std::string RpcRequest() const;
   std::string RpcReply(std::string_view client_id) const;

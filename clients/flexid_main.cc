@@ -33,11 +33,25 @@ int main(int argc, char** argv) {
   app.add_option("--channel-prefix", flexid::cli::ChannelPrefix(),
                  "Channel prefix of the flexidd bus, its channel_prefix (default FLEXID)")
       ->check([](const std::string& prefix) { return flexid::bus::PrefixProblem(prefix); });
-  app.add_option("--key-file", flexid::cli::KeyFilePath(),
-                 "Key for requests that change data (default $FLEXID_KEY_FILE, else "
-                 "var/flexidd.key)");
-  app.add_option("--db", flexid::cli::DbPath(),
-                 "Read this database file directly instead of asking flexidd (offline forms)");
+  app.add_option("--key-file", flexid::cli::KeyFileOptions(),
+                 "Key for requests that change data: PATH for any daemon, or ID=PATH for "
+                 "daemon ID (repeatable; default $FLEXID_KEY_FILE, else var/flexidd.key)")
+      ->allow_extra_args(false)
+      ->check([](const std::string& value) { return flexid::cli::KeyFileOptionProblem(value); });
+  app.add_option("--key-dir", flexid::cli::KeyDir(),
+                 "Directory of per-daemon keys: the key of daemon ID is DIR/ID.key");
+  app.add_option("--db", flexid::cli::DbPaths(),
+                 "Read this database file directly instead of asking flexidd (offline forms; "
+                 "repeatable: read-only commands merge the files)")
+      ->allow_extra_args(false);
+  app.add_option("--daemon", flexid::cli::DaemonIds(),
+                 "Ask only this flexidd (its daemon_id; repeatable for read-only commands); a "
+                 "request that changes data goes to it")
+      ->allow_extra_args(false)
+      ->check([](const std::string& id) { return flexid::bus::PrefixProblem(id); });
+  app.add_option("--reply-timeout", flexid::cli::ReplyTimeout_s(),
+                 "Seconds read-only requests wait for every daemon to answer (default 10)")
+      ->check(CLI::PositiveNumber);
   try {
     app.parse(argc, argv);
   } catch (const CLI::Success& e) {

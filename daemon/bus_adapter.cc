@@ -32,6 +32,8 @@ void Service::Subscribe() {
       ->setQueueCapacity(1000);
   lcm.subscribeFunction(bus::Exactly(channels.TrialControl()), &Service::OnTrialControlThunk, this)
       ->setQueueCapacity(1000);
+  lcm.subscribeFunction(bus::Exactly(channels.Ownership()), &Service::OnOwnershipThunk, this)
+      ->setQueueCapacity(1000);
 }
 
 void Service::OnVoltageThunk(const lcm::ReceiveBuffer* rbuf, const std::string& channel,
@@ -54,39 +56,31 @@ void Service::OnTrialControlThunk(const lcm::ReceiveBuffer* rbuf, const std::str
   self->Guarded(channel, [&] { self->OnTrialControl(*rbuf); });
 }
 
-// The actuator a sample channel names (PREFIX/<id>/KIND), if the message agrees with it
-// and the actuator is known or may be added.
-ActuatorState* Service::SampleActuator(const std::string& channel, const std::string& message_id) {
+// True when a sample channel (PREFIX/<id>/KIND) names the message's actuator; counted
+// as malformed (misaddressed) otherwise.
+bool Service::ChannelNames(const std::string& channel, const std::string& message_id) {
   const size_t first = config.channel_prefix.size() + 1;
   const size_t second = channel.find('/', first);
   if (second == std::string::npos || channel.find('/', second + 1) != std::string::npos ||
       channel.compare(first, second - first, message_id) != 0) {
-    ++counters.rejected_malformed;  // misaddressed: the channel names another actuator
-    return nullptr;
+    ++counters.rejected_malformed;
+    return false;
   }
-  return KnownOrNewActuator(message_id);
-}
-
-// The actuator of that id, added (and stored) when unknown actuators are accepted.
-ActuatorState* Service::KnownOrNewActuator(const std::string& message_id) {
-  auto it = actuators.find(message_id);
-  if (it != actuators.end()) return &it->second;
-  if (!config.accept_unknown_actuators || !bus::IsValidId(message_id)) {
-    ++counters.rejected_unknown_actuator;
-    return nullptr;
-  }
-  storage::Actuator info;
-  info.id = message_id;
-  Store(info);
-  AddActuator(info);
-  spdlog::info("new actuator [id: {}]", message_id);
-  return &actuators.at(message_id);
+  return true;
 }
 
 void Service::OnVoltage(const lcm::ReceiveBuffer& rbuf, const std::string& channel) {
   flexid::voltage_sample_t message;
   if (!Decode(rbuf, &message, wire::kVoltageSample)) return;
-  ActuatorState* state = SampleActuator(channel, message.actuator_id);
+  if (ChannelNames(channel, message.actuator_id)) AcceptVoltage(message);
+}
+
+// A well-formed sample of its channel's actuator: recorded when this daemon owns the
+// actuator, held while its owner is being decided (ownership_bus.cc), counted otherwise.
+void Service::AcceptVoltage(const flexid::voltage_sample_t& message) {
+  bool hold = false;
+  ActuatorState* state = OwnedActuator(message.actuator_id, &hold);
+  if (hold) Hold(message.actuator_id, [this, message] { AcceptVoltage(message); });
   if (!state) return;
   if (!std::isfinite(message.voltage_V)) {
     ++counters.rejected_nonfinite;
@@ -103,7 +97,13 @@ void Service::OnVoltage(const lcm::ReceiveBuffer& rbuf, const std::string& chann
 void Service::OnDeflection(const lcm::ReceiveBuffer& rbuf, const std::string& channel) {
   flexid::deflection_sample_t message;
   if (!Decode(rbuf, &message, wire::kDeflectionSample)) return;
-  ActuatorState* state = SampleActuator(channel, message.actuator_id);
+  if (ChannelNames(channel, message.actuator_id)) AcceptDeflection(message);
+}
+
+void Service::AcceptDeflection(const flexid::deflection_sample_t& message) {
+  bool hold = false;
+  ActuatorState* state = OwnedActuator(message.actuator_id, &hold);
+  if (hold) Hold(message.actuator_id, [this, message] { AcceptDeflection(message); });
   if (!state) return;
   if (!std::isfinite(message.deflection_mm)) {
     ++counters.rejected_nonfinite;
@@ -133,6 +133,15 @@ void Service::OnTrialControl(const lcm::ReceiveBuffer& rbuf) {
   }
   flexid::trial_control2_t message;
   if (!Decode(rbuf, &message, wire::kTrialControl2)) return;
+  // Another daemon's actuator: its owner checks the signature (with its own key) and acts.
+  if (!ownership.Owns(message.actuator_id) &&
+      !ownership.OwnerElsewhere(message.actuator_id).empty()) {
+    ++counters.samples_not_owned;
+    spdlog::debug("trial control for another daemon's actuator ignored [actuator: {}, owner: {}]",
+                  ArgumentSummary(message.actuator_id),
+                  ownership.OwnerElsewhere(message.actuator_id));
+    return;
+  }
   const std::string refusal = verifier.Check(message, bus::WallClockUtime());
   if (!refusal.empty()) {
     ++counters.refused_unauthorized;
@@ -153,7 +162,15 @@ void Service::OnTrialControl(const lcm::ReceiveBuffer& rbuf) {
                message.actuator_id,
                message.action == flexid::trial_control2_t::kStart ? "start" : "stop",
                ArgumentSummary(message.protocol));
-  ActuatorState* state = KnownOrNewActuator(message.actuator_id);
+  ApplyTrialControl(message);
+}
+
+// Signed trial control that passed its checks, for an actuator this daemon owns (held
+// while its owner is being decided, like a sample).
+void Service::ApplyTrialControl(const flexid::trial_control2_t& message) {
+  bool hold = false;
+  ActuatorState* state = OwnedActuator(message.actuator_id, &hold);
+  if (hold) Hold(message.actuator_id, [this, message] { ApplyTrialControl(message); });
   if (!state) return;
   if (state->trial_id != 0) StopTrial(state, message.utime, storage::TrialState::kComplete);
   if (message.action == flexid::trial_control2_t::kStart)

@@ -80,10 +80,26 @@ Config ParseConfigText(std::string_view text, const std::string& path) {
   }
   Config c;
   CheckKeys(root,
-            {"daemon_id", "database", "lcm_url", "channel_prefix", "log_file", "log_level",
-             "commit_interval_ms", "auto_trials", "trial_idle_stop_s", "accept_unknown_actuators",
-             "max_message_bytes", "pin_threads", "auth_key_file", "auth_window_s", "actuators",
-             "identification", "policy", "alerts", "health"},
+            {"daemon_id",
+             "database",
+             "lcm_url",
+             "channel_prefix",
+             "log_file",
+             "log_level",
+             "commit_interval_ms",
+             "auto_trials",
+             "trial_idle_stop_s",
+             "accept_unknown_actuators",
+             "ownership_wait_s",
+             "max_message_bytes",
+             "pin_threads",
+             "auth_key_file",
+             "auth_window_s",
+             "actuators",
+             "identification",
+             "policy",
+             "alerts",
+             "health"},
             path);
   Read(root, "daemon_id", path, &c.daemon_id);
   Read(root, "database", path, &c.database);
@@ -95,6 +111,7 @@ Config ParseConfigText(std::string_view text, const std::string& path) {
   Read(root, "auto_trials", path, &c.auto_trials);
   Read(root, "trial_idle_stop_s", path, &c.trial_idle_stop_s);
   Read(root, "accept_unknown_actuators", path, &c.accept_unknown_actuators);
+  Read(root, "ownership_wait_s", path, &c.ownership_wait_s);
   Read(root, "max_message_bytes", path, &c.max_message_bytes);
   Read(root, "pin_threads", path, &c.pin_threads);
   Read(root, "auth_key_file", path, &c.auth_key_file);
@@ -187,6 +204,8 @@ void Validate(const Config& c) {
     Fail("commit_interval_ms", "must be 1..200 (DESIGN.md: loss window <= 200 ms)");
   if (!(c.trial_idle_stop_s > 0.0) || !std::isfinite(c.trial_idle_stop_s))
     Fail("trial_idle_stop_s", "must be finite and > 0");
+  if (!(c.ownership_wait_s >= 0.0 && c.ownership_wait_s <= 60.0))
+    Fail("ownership_wait_s", "must be 0 .. 60 seconds");
   if (c.max_message_bytes < 256 || c.max_message_bytes > (64 << 20))
     Fail("max_message_bytes", "must be 256 .. 64 MiB");
   if (!(c.auth_window_s >= 1.0 && c.auth_window_s <= 3600.0))
@@ -251,7 +270,8 @@ std::vector<std::string> Describe(const Config& c) {
       "commit_interval_ms: " + std::to_string(c.commit_interval_ms),
       "auto_trials: " + std::string(c.auto_trials ? "true" : "false") +
           ", trial_idle_stop_s: " + std::to_string(c.trial_idle_stop_s),
-      "accept_unknown_actuators: " + std::string(c.accept_unknown_actuators ? "true" : "false"),
+      "accept_unknown_actuators: " + std::string(c.accept_unknown_actuators ? "true" : "false") +
+          ", ownership_wait_s: " + std::to_string(c.ownership_wait_s),
       "max_message_bytes: " + std::to_string(c.max_message_bytes) +
           ", pin_threads: " + std::string(c.pin_threads ? "true" : "false"),
       "auth_key_file: " + KeyFilePath(c) + ", auth_window_s: " + std::to_string(c.auth_window_s),

@@ -73,6 +73,11 @@ struct Config {
   bool auto_trials = true;           // a trial starts when an idle actuator gets a non-zero voltage
   double trial_idle_stop_s = 300.0;  // an automatic trial stops after this long at 0 V
   bool accept_unknown_actuators = true;
+  // Several daemons on one bus (docs/architecture.md, "Several daemons"): an actuator not
+  // in the configuration is pending this long (its messages held, not dropped) while the
+  // other daemons' claims on it are heard, at start-up and whenever other daemons are
+  // about; 0 adopts it at once.
+  double ownership_wait_s = 0.5;
   int64_t max_message_bytes = 65536;
   // Pin the loop and LCM's receive thread to CPU 0, and the sample writer and the
   // identification worker to the other CPUs. Keeps a fit from delaying predictions on a

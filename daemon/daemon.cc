@@ -35,6 +35,13 @@ auth::Verifier MakeVerifier(const Config& config) {
   return auth::Verifier(key, options);
 }
 
+OwnershipOptions OwnershipOptionsOf(const Config& config) {
+  OwnershipOptions options;
+  options.wait = std::chrono::milliseconds(static_cast<int64_t>(config.ownership_wait_s * 1000.0));
+  options.accept_unknown = config.accept_unknown_actuators;
+  return options;
+}
+
 }  // namespace
 
 Service::Service(Config c, std::string path)
@@ -43,7 +50,8 @@ Service::Service(Config c, std::string path)
       config_path(std::move(path)),
       db(storage::Database::Open(config.database)),
       verifier(MakeVerifier(config)),
-      lcm(bus::WithReceiveBuffer(config.lcm_url, kReceiveBufferBytes)) {
+      lcm(bus::WithReceiveBuffer(config.lcm_url, kReceiveBufferBytes)),
+      ownership(config.daemon_id, auth::RandomNonce(), OwnershipOptionsOf(config), started) {
   database_identity = IdentityOf(config.database);  // none in memory: nothing to watch
   if (!lcm.good()) throw std::runtime_error("cannot join the LCM bus at " + config.lcm_url);
   // Signals are taken through signalfd in the loop. They are blocked here, before any
@@ -80,9 +88,13 @@ Service::Service(Config c, std::string path)
   }
   options.on_outcome = [this] { Wake(); };
   writer = std::make_unique<storage::SampleWriter>(config.database, options);
+  // Configured actuators are this daemon's; those the file knows from earlier runs are
+  // answered for, and adopted again when their messages come (daemon/ownership.h).
   for (const storage::Actuator& a : config.actuators) {
     Store(a);
     AddActuator(a);
+    ownership.Configure(a.id);
+    actuators.at(a.id).owned = true;
   }
   for (const storage::Actuator& a : db.Actuators())
     if (!actuators.count(a.id)) AddActuator(a);

@@ -12,6 +12,8 @@
 //        --> methods (rpc_methods.h); "identify" runs on the identification worker, the writer
 //        stores a new model version, then the loop hot-swaps the predictor and replies.
 //   FLEXID/STATUS <-- counters, once a second.
+//   FLEXID/OWNERSHIP <--> the actuators this daemon owns and the daemons it heard, once a
+//        second and when they change (several daemons on one bus: daemon/ownership.h).
 //
 // The daemon works in message time (utime), never wall-clock time (one exception: the
 // replay window of signed requests, lcmtypes/message_auth.h), so an accelerated rig
@@ -53,6 +55,9 @@ struct Counters {
   // RPC requests and trial control that would change data, refused as unsigned, badly
   // signed, stale or replayed (README "Security").
   int64_t refused_unauthorized = 0;
+  // Samples and trial control of actuators another daemon owns (daemon/ownership.h):
+  // seen, not recorded.
+  int64_t samples_not_owned = 0;
 };
 
 struct Service;

@@ -112,6 +112,7 @@ Counters Service::Snapshot() const {
   c.alerts_raised = counters.alerts_raised.load(std::memory_order_relaxed);
   c.alerts_dropped = counters.alerts_dropped.load(std::memory_order_relaxed);
   c.refused_unauthorized = counters.refused_unauthorized.load(std::memory_order_relaxed);
+  c.samples_not_owned = counters.samples_not_owned.load(std::memory_order_relaxed);
   c.samples_stored = writer->stored();
   return c;
 }
@@ -156,9 +157,12 @@ void Service::RunOnce(int timeout_ms) {
   pollfd fds[3] = {
       {lcm.getFileno(), POLLIN, 0}, {signal_fd.get(), POLLIN, 0}, {wake_fd.get(), POLLIN, 0}};
   const auto now = std::chrono::steady_clock::now();
-  const int until_status = static_cast<int>(std::max<int64_t>(
-      0, std::chrono::duration_cast<std::chrono::milliseconds>(next_status - now).count()));
-  const int ready = poll(fds, 3, std::min(timeout_ms, until_status));
+  // The next status, or the next ownership decision if sooner.
+  auto next_timer = next_status;
+  if (const auto decide = ownership.NextDeadline()) next_timer = std::min(next_timer, *decide);
+  const int until_timer = static_cast<int>(
+      std::max<int64_t>(0, std::chrono::ceil<std::chrono::milliseconds>(next_timer - now).count()));
+  const int ready = poll(fds, 3, std::min(timeout_ms, until_timer));
   loop_now = std::chrono::steady_clock::now();
   if (ready > 0) {
     // Drain what LCM has, bounded so that signals and the timer are served.
@@ -170,10 +174,15 @@ void Service::RunOnce(int timeout_ms) {
     if (fds[1].revents & POLLIN) LoopPart("signals", [this] { HandleSignals(); });
     if (fds[2].revents & POLLIN) LoopPart("results", [this] { DrainFinished(); });
   }
+  LoopPart("ownership", [this] { DecideOwnership(false); });
   if (std::chrono::steady_clock::now() >= next_status) {
     loop_now = std::chrono::steady_clock::now();
     LoopPart("health", [this] { CheckHealth(); });
-    LoopPart("status", [this] { PublishStatus(); });
+    LoopPart("ownership", [this] { DecideOwnership(true); });
+    LoopPart("status", [this] {
+      PublishStatus();
+      Announce();
+    });
     next_status += std::chrono::seconds(1);
     if (next_status < std::chrono::steady_clock::now())
       next_status = std::chrono::steady_clock::now() + std::chrono::seconds(1);

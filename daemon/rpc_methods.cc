@@ -23,13 +23,36 @@ using ReplyStatus = flexid::rpc_reply_t;
 
 }  // namespace
 
+// A request may be addressed to one daemon (argument "daemon_id", covered by the
+// signature of a signed request): the others ignore it. An unaddressed one goes to every
+// daemon: each answers a read-only request (one that holds nothing says so), and a signed
+// request about an actuator is left to its owner by the daemons that know the owner.
 void Service::OnRequest(const lcm::ReceiveBuffer& rbuf) {
   flexid::rpc_request_t request;
   if (!Decode(rbuf, &request, wire::kRpcRequest)) return;
   const RpcContext context{request.request_id, request.client_id};
+  nlohmann::json args = nlohmann::json::parse(request.args_json, nullptr, false);
+  if (!args.is_object()) args = nlohmann::json::object();  // HandleRequest says what is wrong
+  const auto address = args.find("daemon_id");
+  const bool addressed = address != args.end();
+  if (addressed && !address->is_string()) {
+    Reply(context, {flexid::rpc_reply_t::kBadRequest, nullptr,
+                    "argument \"daemon_id\" must be a string: the daemon_id of the flexidd the "
+                    "request is for",
+                    false});
+    return;
+  }
+  if (addressed && address->get<std::string>() != config.daemon_id) return;
+  const bool changes_data = ChangesData(request.method);
+  const auto actuator = args.find("actuator");
+  const std::string actuator_id =
+      actuator != args.end() && actuator->is_string() ? actuator->get<std::string>() : "";
+  if (changes_data && !addressed && !actuator_id.empty() && !ownership.Owns(actuator_id) &&
+      !ownership.OwnerElsewhere(actuator_id).empty())
+    return;                                     // its owner answers, with its own key
+  if (!changes_data && !addressed) Announce();  // the client learns who is on the bus
   // Methods that change data need a valid signature, a fresh time and a new nonce; every
   // one is logged with its outcome. Read-only methods need none (an `auth` is ignored).
-  const bool changes_data = ChangesData(request.method);
   if (changes_data) {
     const std::string refusal = verifier.Check(request, bus::WallClockUtime());
     if (!refusal.empty()) {
@@ -42,10 +65,20 @@ void Service::OnRequest(const lcm::ReceiveBuffer& rbuf) {
             {flexid::rpc_reply_t::kUnauthorized, nullptr, "not authorised: " + refusal, false});
       return;
     }
+    // About an actuator known here whose owner is being decided: answered once it is.
+    if (actuators.count(actuator_id) && !actuators.at(actuator_id).owned &&
+        RouteTo(actuator_id) == Ownership::Verdict::kHold) {
+      Hold(actuator_id, [this, request] { Dispatch(request); });
+      return;
+    }
   }
-  // A request that reads the file sees every write queued before it (a trial stopped
-  // on the bus, then "identify"), as when the loop wrote itself: it waits for them,
-  // unless storage is failing (then it is answered from what the file holds).
+  Dispatch(request);
+}
+
+// A request that reads the file sees every write queued before it (a trial stopped on the
+// bus, then "identify"), as when the loop wrote itself: it waits for them, unless storage
+// is failing (then it is answered from what the file holds).
+void Service::Dispatch(const flexid::rpc_request_t& request) {
   if (ReadsTheFile(request.method) && last_done_ticket < last_ticket &&
       writer->last_error().empty()) {
     on_written.emplace(last_ticket,
@@ -161,8 +194,17 @@ ActuatorState* Service::ActuatorArgument(const nlohmann::json& args, bool requir
   const std::string id = StringArgument(args, "actuator", required ? nullptr : &empty);
   if (id.empty()) return nullptr;
   auto it = actuators.find(id);
-  if (it == actuators.end()) throw ArgumentError("unknown actuator \"" + id + "\"");
+  if (it == actuators.end()) {
+    if (!ownership.OwnerElsewhere(id).empty()) throw ArgumentError(NotOwnerText(id));
+    throw ArgumentError("unknown actuator \"" + id + "\"");
+  }
   return &it->second;
+}
+
+ActuatorState* Service::OwnedActuatorArgument(const nlohmann::json& args) {
+  ActuatorState* state = ActuatorArgument(args, true);
+  if (!state->owned) throw ArgumentError(NotOwnerText(state->info.id));
+  return state;
 }
 
 RpcOutcome Service::RpcStatus(const flexid::rpc_request_t&, const nlohmann::json&) {
@@ -170,6 +212,15 @@ RpcOutcome Service::RpcStatus(const flexid::rpc_request_t&, const nlohmann::json
   // A source that starts again (flexid-rig) continues its message time after this one,
   // so that flexidd does not see its clock jump back; null before any sample.
   const int64_t latest_utime = LatestMessageUtime();
+  // Several daemons (daemon/ownership.h): what this one records, and whom it heard.
+  nlohmann::json owned = nlohmann::json::array();
+  for (const auto& [id, state] : actuators)
+    if (state.owned) owned.push_back(id);
+  nlohmann::json peers = nlohmann::json::array();
+  const int64_t now_utime = bus::WallClockUtime();
+  for (const PeerHeard& peer : ownership.Announce(now_utime).peers)
+    peers.push_back({{"daemon_id", peer.daemon_id},
+                     {"last_heard_s", 1e-6 * static_cast<double>(now_utime - peer.heard_utime)}});
   return {ReplyStatus::kOk,
           {{"daemon_id", config.daemon_id},
            {"version", kVersion},
@@ -187,6 +238,10 @@ RpcOutcome Service::RpcStatus(const flexid::rpc_request_t&, const nlohmann::json
            {"alerts_dropped", c.alerts_dropped},
            {"writes_queued", writer->writes_queued()},
            {"requests_refused_unauthorized", c.refused_unauthorized},
+           {"samples_not_owned", c.samples_not_owned},
+           {"announcements_heard", counters.announcements_heard.load(std::memory_order_relaxed)},
+           {"owned_actuators", owned},
+           {"peers", peers},
            {"identification_running", worker->busy()},
            {"latest_utime",
             latest_utime == kNoTime ? nlohmann::json(nullptr) : nlohmann::json(latest_utime)}},
@@ -195,9 +250,16 @@ RpcOutcome Service::RpcStatus(const flexid::rpc_request_t&, const nlohmann::json
 }
 
 RpcOutcome Service::RpcActuators(const flexid::rpc_request_t&, const nlohmann::json&) {
+  // Who records it: this daemon, another one it heard claim it, or none (null).
+  auto OwnerJson = [this](const std::string& id, const ActuatorState& state) {
+    const std::string owner = state.owned ? config.daemon_id : ownership.OwnerElsewhere(id);
+    return owner.empty() ? nlohmann::json(nullptr) : nlohmann::json(owner);
+  };
   nlohmann::json list = nlohmann::json::array();
   for (const auto& [id, state] : actuators)
     list.push_back({{"id", id},
+                    {"claim", ClaimName(ownership.ClaimOn(id))},
+                    {"owner", OwnerJson(id, state)},
                     {"length_mm", state.info.length_mm},
                     {"width_mm", state.info.width_mm},
                     {"thickness_mm", state.info.thickness_mm},
@@ -225,7 +287,7 @@ RpcOutcome Service::RpcStoredQuery(const flexid::rpc_request_t& request,
 
 RpcOutcome Service::RpcModelActivate(const flexid::rpc_request_t& request,
                                      const nlohmann::json& args) {
-  ActuatorState* state = ActuatorArgument(args, true);
+  ActuatorState* state = OwnedActuatorArgument(args);
   const auto version = static_cast<int32_t>(RequiredIntegerArgument(args, "version", 1, INT32_MAX));
   const auto record = db.FindModel(state->info.id, version);
   if (!record) return {ReplyStatus::kNotFound, nullptr, "no such model version", false};
@@ -261,7 +323,7 @@ RpcOutcome Service::RpcModelActivate(const flexid::rpc_request_t& request,
 
 RpcOutcome Service::RpcTrialControl(const flexid::rpc_request_t& request,
                                     const nlohmann::json& args) {
-  ActuatorState* state = ActuatorArgument(args, true);
+  ActuatorState* state = OwnedActuatorArgument(args);
   const int64_t now =
       state->voltage_utime != kNoTime ? state->voltage_utime : bus::WallClockUtime();
   if (request.method == "trial_start") {
@@ -284,7 +346,7 @@ RpcOutcome Service::RpcTrialControl(const flexid::rpc_request_t& request,
 }
 
 RpcOutcome Service::RpcIdentify(const flexid::rpc_request_t& request, const nlohmann::json& args) {
-  ActuatorState* state = ActuatorArgument(args, true);
+  ActuatorState* state = OwnedActuatorArgument(args);
   std::vector<int64_t> trials;
   if (args.contains("trials")) {
     for (int64_t id : TrialIdsArgument(args, "trials", 100)) {
@@ -334,7 +396,7 @@ RpcOutcome Service::RpcIdentify(const flexid::rpc_request_t& request, const nloh
 }
 
 RpcOutcome Service::RpcDiagnose(const flexid::rpc_request_t& request, const nlohmann::json& args) {
-  ActuatorState* state = ActuatorArgument(args, true);
+  ActuatorState* state = OwnedActuatorArgument(args);
   // "trial": one; "trials": several, in the order given; "recent": the latest K
   // finished ones, oldest first; none: the latest finished one.
   if (args.contains("trial") + args.contains("trials") + args.contains("recent") > 1)

@@ -9,6 +9,7 @@
 //   rpc_methods.cc  requests: the signature check and the methods
 //   worker.cc       identification and diagnosis on the worker thread, and their results
 //   health.cc       faults other than bad messages
+//   ownership_bus.cc  several daemons on one bus: announcements, held messages, conflicts
 // Everything runs on the loop's thread unless it says otherwise.
 #pragma once
 
@@ -21,6 +22,8 @@
 #include <deque>
 #include <flexid/deflection_sample_t.hpp>
 #include <flexid/rpc_request_t.hpp>
+#include <flexid/trial_control2_t.hpp>
+#include <flexid/voltage_sample_t.hpp>
 #include <functional>
 #include <lcm/lcm-cpp.hpp>
 #include <map>
@@ -35,6 +38,7 @@
 #include "daemon/config.h"
 #include "daemon/daemon.h"
 #include "daemon/health.h"
+#include "daemon/ownership.h"
 #include "daemon/predictor.h"
 #include "daemon/rpc.h"
 #include "daemon/unique_fd.h"
@@ -49,6 +53,9 @@ namespace flexid::daemon {
 // What the loop knows of one actuator: its inputs, its trial, its health, its prediction.
 struct ActuatorState {
   storage::Actuator info;
+  // This daemon records it (configured, or adopted: daemon/ownership.h). An actuator
+  // known only from the file is answered for, but its messages are not recorded.
+  bool owned = false;
   double voltage_V = 0.0;
   int64_t voltage_utime = kNoTime;
   int64_t deflection_utime = kNoTime;
@@ -100,7 +107,7 @@ struct Service {
     std::atomic<int64_t> messages_received{0}, samples_accepted{0}, rejected_malformed{0},
         rejected_nonfinite{0}, rejected_out_of_order{0}, rejected_unknown_actuator{0},
         dropped_queue_full{0}, predictions_published{0}, alerts_raised{0}, alerts_dropped{0},
-        refused_unauthorized{0};
+        refused_unauthorized{0}, samples_not_owned{0}, announcements_heard{0};
   } counters;
   std::map<std::string, ActuatorState> actuators;
   std::atomic<bool> stop{false};
@@ -110,6 +117,13 @@ struct Service {
   std::vector<int> background_cpus;  // pin_threads: the writer's and the worker's CPUs
   // Identification and diagnosis (worker.h): after the writer, which its jobs flush.
   std::unique_ptr<Worker> worker;
+
+  // Several daemons on one bus (ownership_bus.cc): the claims, and the messages and
+  // requests about actuators whose owner is being decided, in arrival order.
+  Ownership ownership;
+  std::map<std::string, std::vector<std::function<void()>>> held;
+  size_t held_count = 0;
+  std::chrono::steady_clock::time_point last_announced{};
 
   // Health (health.cc): the time of this loop pass, the database file's identity,
   // the storage failure in progress.
@@ -185,11 +199,13 @@ struct Service {
     }
     return true;
   }
-  ActuatorState* SampleActuator(const std::string& channel, const std::string& message_id);
-  ActuatorState* KnownOrNewActuator(const std::string& message_id);
+  bool ChannelNames(const std::string& channel, const std::string& message_id);
   void OnVoltage(const lcm::ReceiveBuffer& rbuf, const std::string& channel);
   void OnDeflection(const lcm::ReceiveBuffer& rbuf, const std::string& channel);
+  void AcceptVoltage(const flexid::voltage_sample_t& message);
+  void AcceptDeflection(const flexid::deflection_sample_t& message);
   void OnTrialControl(const lcm::ReceiveBuffer& rbuf);
+  void ApplyTrialControl(const flexid::trial_control2_t& message);
   static int64_t FingerprintOf(const lcm::ReceiveBuffer& rbuf);
   void Reply(const RpcContext& context, const RpcOutcome& outcome);
 
@@ -210,6 +226,7 @@ struct Service {
 
   // rpc_methods.cc
   void OnRequest(const lcm::ReceiveBuffer& rbuf);
+  void Dispatch(const flexid::rpc_request_t& request);
   static bool ReadsTheFile(const std::string& method);
   void Answer(const flexid::rpc_request_t& request);
   static void LogAccepted(const flexid::rpc_request_t& request, const std::string& how);
@@ -217,6 +234,9 @@ struct Service {
                               RpcOutcome reply, std::function<void()> then = {});
   RpcOutcome HandleRequest(const flexid::rpc_request_t& request);
   ActuatorState* ActuatorArgument(const nlohmann::json& args, bool required);
+  // The actuator of a request that changes data: one this daemon owns, else ArgumentError
+  // naming the owner.
+  ActuatorState* OwnedActuatorArgument(const nlohmann::json& args);
   // The methods (rpc_methods.cc: kRpcMethods).
   RpcOutcome RpcStatus(const flexid::rpc_request_t& request, const nlohmann::json& args);
   RpcOutcome RpcActuators(const flexid::rpc_request_t& request, const nlohmann::json& args);
@@ -242,6 +262,23 @@ struct Service {
   // Stores a diagnosis's proposal (then a model_proposed alert), activates it when
   // asked (adopt), and answers the request with the diagnosis and the new version.
   void StoreProposal(const DiagnosisResult& result);
+
+  // ownership_bus.cc
+  static void OnOwnershipThunk(const lcm::ReceiveBuffer* rbuf, const std::string& channel,
+                               Service* self);
+  void OnOwnership(const lcm::ReceiveBuffer& rbuf);
+  void Announce();
+  void DecideOwnership(bool periodic);
+  void ApplyOwnershipEvents();
+  void OnOwnershipEvent(const OwnershipEvent& event);
+  // The actuator a message names when this daemon records it; otherwise nullptr, with
+  // *hold set while its owner is being decided (the caller holds the message) and the
+  // message counted when it is refused (another daemon's, or unknown).
+  ActuatorState* OwnedActuator(const std::string& actuator_id, bool* hold);
+  Ownership::Verdict RouteTo(const std::string& actuator_id);
+  void Hold(const std::string& actuator_id, std::function<void()> replay);
+  // "lab-b does not own actuator S3: lab-a does (configured there) ..." for a refusal.
+  std::string NotOwnerText(const std::string& actuator_id) const;
 
   // health.cc
   int64_t LatestMessageUtime() const;

@@ -16,7 +16,18 @@
 
 namespace flexid::wire {
 
-enum class Field { kInt8, kInt16Count, kInt32, kInt64, kDouble, kString, kDoubleArray };
+enum class Field {
+  kInt8,
+  kInt16Count,
+  kInt32,
+  kInt64,
+  kDouble,
+  kString,
+  kDoubleArray,
+  kStringArray,
+  kInt8Array,
+  kInt64Array
+};
 
 // True if `data` holds exactly one message of this layout with well-formed strings and
 // arrays (the fingerprint itself is checked by decode()).
@@ -33,6 +44,20 @@ inline bool WellFormed(const void* data, size_t size, std::initializer_list<Fiel
     if (width < 8 && (v >> (8 * width - 1)) & 1) v |= ~uint64_t{0} << (8 * width);
     *value = static_cast<int64_t>(v);
     pos += width;
+    return true;
+  };
+  // A string: an int32 length counting its NUL, then the bytes. NUL last and nowhere
+  // else: LCM's encoders write strlen() bytes, so a string with an embedded NUL does not
+  // survive decode -> encode (a reply echoing such a request_id would be sent with
+  // unwritten bytes at its end).
+  auto read_string = [&]() {
+    int64_t length = 0;
+    if (!read_be(4, &length) || length < 1 || static_cast<uint64_t>(length) > size - pos)
+      return false;
+    if (bytes[pos + static_cast<size_t>(length) - 1] != 0 ||
+        std::memchr(bytes + pos, 0, static_cast<size_t>(length) - 1) != nullptr)
+      return false;
+    pos += static_cast<size_t>(length);
     return true;
   };
   for (Field field : layout) {
@@ -52,19 +77,20 @@ inline bool WellFormed(const void* data, size_t size, std::initializer_list<Fiel
         if (!read_be(8, &value)) return false;
         break;
       case Field::kString:
-        if (!read_be(4, &value) || value < 1 || static_cast<uint64_t>(value) > size - pos)
-          return false;
-        // NUL last and nowhere else: LCM's encoders write strlen() bytes, so a string
-        // with an embedded NUL does not survive decode -> encode (a reply echoing such a
-        // request_id would be sent with unwritten bytes at its end).
-        if (bytes[pos + static_cast<size_t>(value) - 1] != 0 ||
-            std::memchr(bytes + pos, 0, static_cast<size_t>(value) - 1) != nullptr)
-          return false;
-        pos += static_cast<size_t>(value);
+        if (!read_string()) return false;
         break;
       case Field::kDoubleArray:
+      case Field::kInt64Array:
         if (static_cast<uint64_t>(count) > (size - pos) / 8) return false;
         pos += static_cast<size_t>(count) * 8;
+        break;
+      case Field::kInt8Array:
+        if (static_cast<uint64_t>(count) > size - pos) return false;
+        pos += static_cast<size_t>(count);
+        break;
+      case Field::kStringArray:
+        for (int64_t i = 0; i < count; ++i)
+          if (!read_string()) return false;
         break;
     }
   }
@@ -95,5 +121,9 @@ inline constexpr std::initializer_list<Field> kStatus = {
     F::kInt64,                                                // uptime .. rejected_nonfinite
     F::kInt64, F::kInt64,  F::kInt64,  F::kInt64, F::kInt64,  // .. alerts_raised
     F::kInt32, F::kInt32,  F::kInt8};
+// utime, daemon_id, instance_id, the claims (ids, kinds, first seen), the peers (ids, heard).
+inline constexpr std::initializer_list<Field> kOwnership = {
+    F::kInt64,     F::kString,     F::kString,     F::kInt16Count,  F::kStringArray,
+    F::kInt8Array, F::kInt64Array, F::kInt16Count, F::kStringArray, F::kInt64Array};
 
 }  // namespace flexid::wire

@@ -27,7 +27,8 @@ std::string ActuatorArgument(Database& db, const nlohmann::json& args, bool requ
   }
   if (!it->is_string()) throw QueryError("argument \"actuator\" must be a string");
   const std::string id = it->get<std::string>();
-  if (!db.FindActuator(id)) throw QueryError("unknown actuator \"" + id + "\"");
+  if (!db.FindActuator(id))
+    throw QueryError("unknown actuator \"" + id + "\"", QueryError::Kind::kNotFound);
   return id;
 }
 

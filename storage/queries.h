@@ -11,7 +11,8 @@
 //   models         {"actuator"}
 //   model          {"actuator", "version"? (0 or absent: the active one)}
 //   alerts         {"actuator"?, "since_utime"? (>= 0), "limit"? (1-10000, default 100)}
-// An actuator must be known to the database (its actuators table).
+// An actuator must be known to the database (its actuators table): one it does not know
+// is not found (QueryError::Kind::kNotFound; with several daemons, one that holds none).
 #pragma once
 
 #include <cstdint>

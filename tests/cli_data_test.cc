@@ -294,7 +294,7 @@ TEST(CliDataOffline, ImportExportImportIsExact) {
   const int64_t id2 = nlohmann::json::parse(again.out)["trial"].get<int64_t>();
   const ProcessResult list = Offline(scratch, db, "trials list --json");
   ASSERT_EQ(list.exit_code, 0) << list.err;
-  const auto trials = nlohmann::json::parse(list.out);
+  const auto trials = nlohmann::json::parse(list.out)["trials"];
   ASSERT_EQ(trials.size(), 2u);
   EXPECT_EQ(trials[0]["start_utime"], trials[1]["start_utime"]);
   EXPECT_EQ(trials[0]["protocol"], "sq");
@@ -421,7 +421,7 @@ TEST(CliDataOffline, StatusActuatorsAlertsTables) {
   }
   const ProcessResult status = Offline(scratch, db, "status --json");
   ASSERT_EQ(status.exit_code, 0) << status.err;
-  const auto s = nlohmann::json::parse(status.out);
+  const auto s = nlohmann::json::parse(status.out)["status"][0];
   EXPECT_EQ(s["trials"], 2);
   EXPECT_EQ(s["samples_stored"], 2);
   EXPECT_EQ(s["alerts"], 2);
@@ -441,7 +441,7 @@ TEST(CliDataOffline, StatusActuatorsAlertsTables) {
 
   const ProcessResult alerts = Offline(scratch, db, "alerts list --json");
   ASSERT_EQ(alerts.exit_code, 0) << alerts.err;
-  const auto a = nlohmann::json::parse(alerts.out);
+  const auto a = nlohmann::json::parse(alerts.out)["alerts"];
   ASSERT_EQ(a.size(), 2u);
   EXPECT_EQ(a[0]["kind"], "drift");  // newest first
   EXPECT_TRUE(a[0]["magnitude_mm"].is_null());
@@ -467,14 +467,15 @@ TEST(CliDataOnline, ReadsAgreeWithTheFileAndStartStopWork) {
   EXPECT_NE(status.out.find("samples_stored"), std::string::npos) << status.out;
   const ProcessResult actuators = daemon.Flexid("actuators --json");
   ASSERT_EQ(actuators.exit_code, 0) << actuators.err;
-  EXPECT_EQ(nlohmann::json::parse(actuators.out)[0]["id"], "S1");
+  EXPECT_EQ(nlohmann::json::parse(actuators.out)["actuators"][0]["id"], "S1");
 
   const std::string db = daemon.db().string();
   const ProcessResult online = daemon.Flexid("trials list --json");
   const ProcessResult offline = Offline(scratch, db, "trials list --json");
   ASSERT_EQ(online.exit_code, 0) << online.err;
   ASSERT_EQ(offline.exit_code, 0) << offline.err;
-  EXPECT_EQ(nlohmann::json::parse(online.out), nlohmann::json::parse(offline.out));
+  EXPECT_EQ(testing::RowsWithoutSource(online.out, "trials"),
+            testing::RowsWithoutSource(offline.out, "trials"));
   const std::string show = "trials show " + std::to_string(id) + " --json";
   EXPECT_EQ(nlohmann::json::parse(daemon.Flexid(show).out),
             nlohmann::json::parse(Offline(scratch, db, show).out));
@@ -518,7 +519,8 @@ TEST(CliDataOnline, ImportReplaysCsvAndLogWithoutLosingSamples) {
               "trials export " + std::to_string(id) + " --out '" + exported + "'");
   ASSERT_EQ(ex.exit_code, 0) << ex.err;
   ExpectSameRecording(model::ReadRecordingCsv(csv), model::ReadRecordingCsv(exported));
-  const auto list = nlohmann::json::parse(daemon.Flexid("trials list --actuator S2 --json").out);
+  const auto list =
+      nlohmann::json::parse(daemon.Flexid("trials list --actuator S2 --json").out)["trials"];
   EXPECT_EQ(list[0]["protocol"], "replay");
   EXPECT_EQ(list[0]["state"], "complete");
 
@@ -540,7 +542,8 @@ TEST(CliDataOnline, ImportReplaysCsvAndLogWithoutLosingSamples) {
   const auto replayed = nlohmann::json::parse(replay.out);
   ASSERT_EQ(replayed["trials"].size(), 2u);
   EXPECT_EQ(replayed["samples"], 600);
-  const auto s3 = nlohmann::json::parse(daemon.Flexid("trials list --actuator S3 --json").out);
+  const auto s3 =
+      nlohmann::json::parse(daemon.Flexid("trials list --actuator S3 --json").out)["trials"];
   ASSERT_EQ(s3.size(), 2u);
   EXPECT_EQ(s3[0]["protocol"], "log-b");
   EXPECT_EQ(s3[0]["samples"], 300);
@@ -552,8 +555,9 @@ TEST(CliDataOnline, ImportReplaysCsvAndLogWithoutLosingSamples) {
   EXPECT_EQ(stale.exit_code, 2);
   EXPECT_NE(stale.err.find("--start-utime"), std::string::npos) << stale.err;
   EXPECT_TRUE(OneLine(stale.err)) << stale.err;
-  EXPECT_EQ(nlohmann::json::parse(daemon.Flexid("trials list --actuator S3 --json").out).size(),
-            2u);
+  EXPECT_EQ(
+      nlohmann::json::parse(daemon.Flexid("trials list --actuator S3 --json").out)["trials"].size(),
+      2u);
   const ProcessResult shifted =
       daemon.Flexid("trials import '" + log + "' --actuator S3 --start-utime " +
                     std::to_string(kLogStart + 1'000'000'000) + " --json");

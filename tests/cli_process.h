@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <sstream>
 #include <string>
 
@@ -46,6 +47,20 @@ inline ProcessResult RunCommand(const std::string& command, const std::filesyste
 
 inline void WriteFile(const std::filesystem::path& path, const std::string& text) {
   std::ofstream(path) << text;
+}
+
+// The rows of a read-only command's --json document (source.h's MergedDocument:
+// {"<key>": rows, "daemons" | "databases": [...], "notes": [...]}) without what names
+// their source ("daemon_id", "database"), so that a daemon's rows and a file's compare.
+inline nlohmann::json RowsWithoutSource(const std::string& out, const std::string& key) {
+  nlohmann::json doc = nlohmann::json::parse(out, nullptr, false);
+  if (!doc.is_object() || !doc.contains(key)) return nullptr;
+  nlohmann::json rows = doc[key];
+  for (nlohmann::json& row : rows) {
+    row.erase("daemon_id");
+    row.erase("database");
+  }
+  return rows;
 }
 
 }  // namespace flexid::testing

@@ -592,7 +592,15 @@ TEST_F(InProcessDaemon, RpcRejectsBadRequestsAndServesAnEmptyDatabase) {
   ExpectBadRequest("trials", R"({"limit": 1e30})", "\"limit\"");
   ExpectBadRequest("trials", R"({"actuator": 5})", "\"actuator\"");
   ExpectBadRequest("trials", R"({"actuator": ["S1"]})", "\"actuator\"");
-  ExpectBadRequest("trials", R"({"actuator": "S9"})", "S9");
+  {  // An actuator the file does not know is not found (with several daemons: one that holds
+     // none of it says so).
+    const auto reply = Call("trials", R"({"actuator": "S9"})");
+    ASSERT_TRUE(reply.has_value()) << "no reply";
+    EXPECT_EQ(reply->status, flexid::rpc_reply_t::kNotFound) << reply->error;
+    EXPECT_NE(reply->error.find("S9"), std::string::npos) << reply->error;
+  }
+  // The daemon a request is addressed to (several daemons on one bus) is named by a string.
+  ExpectBadRequest("trials", R"({"daemon_id": 5})", "\"daemon_id\"");
   ExpectBadRequest("alerts", R"({"since_utime": -1})", "\"since_utime\"");
   ExpectBadRequest("alerts", R"({"limit": null})", "\"limit\"");
   ExpectBadRequest("trial_samples", R"({"trial": "1"})", "\"trial\"");

@@ -327,7 +327,7 @@ TEST(DaemonChannelPrefix, RigImportAndCommandLineFollowThePrefix) {
   const auto list =
       testing::RunCommand(flexid + "trials list --json --channel-prefix lab.7", scratch.path());
   ASSERT_EQ(list.exit_code, 0) << list.err;
-  const auto trials = nlohmann::json::parse(list.out);
+  const auto trials = nlohmann::json::parse(list.out)["trials"];
   ASSERT_EQ(trials.size(), 2u) << list.out;
   for (const auto& t : trials) EXPECT_EQ(t.at("state"), "complete") << list.out;
 

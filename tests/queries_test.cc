@@ -84,7 +84,7 @@ TEST_F(Queries, BadArgumentsAndMissingRecordsAreNamed) {
   std::string text;
   EXPECT_EQ(ErrorOf("trials", {{"limit", 0}}, &text), QueryError::Kind::kBadArgument);
   EXPECT_NE(text.find("\"limit\" must be in [1, 10000]"), std::string::npos) << text;
-  EXPECT_EQ(ErrorOf("trials", {{"actuator", "S9"}}, &text), QueryError::Kind::kBadArgument);
+  EXPECT_EQ(ErrorOf("trials", {{"actuator", "S9"}}, &text), QueryError::Kind::kNotFound);
   EXPECT_NE(text.find("unknown actuator \"S9\""), std::string::npos) << text;
   EXPECT_EQ(ErrorOf("trial_samples", json::object(), &text), QueryError::Kind::kBadArgument);
   EXPECT_NE(text.find("missing argument \"trial\""), std::string::npos) << text;

@@ -6,6 +6,7 @@
 
 #include <flexid/alert_t.hpp>
 #include <flexid/deflection_sample_t.hpp>
+#include <flexid/ownership_t.hpp>
 #include <flexid/prediction_t.hpp>
 #include <flexid/rpc_reply_t.hpp>
 #include <flexid/rpc_request_t.hpp>
@@ -81,6 +82,43 @@ TEST(WireCheck, LayoutsMatchTheGeneratedEncoders) {
   status.daemon_id = "flexidd";
   status.version = "0.1.0";
   ExpectLayoutMatches(status, kStatus);
+  flexid::ownership_t ownership{};
+  ownership.daemon_id = "lab-a";
+  ownership.instance_id = "0123456789abcdef";
+  ExpectLayoutMatches(ownership, kOwnership);  // no claims, no peers
+  ownership.actuator_ids = {"S1", "S22"};
+  ownership.claims = {flexid::ownership_t::kConfigured, flexid::ownership_t::kPending};
+  ownership.first_seen_utime = {0, 1700000000000000};
+  ownership.num_claims = 2;
+  ownership.peer_ids = {"lab-b"};
+  ownership.peer_heard_utime = {1700000000000000};
+  ownership.num_peers = 1;
+  ExpectLayoutMatches(ownership, kOwnership);
+}
+
+TEST(WireCheck, OwnershipArraysAreCheckedStringByString) {
+  flexid::ownership_t ownership{};
+  ownership.daemon_id = "lab-a";
+  ownership.instance_id = "i";
+  ownership.actuator_ids = {"S1"};
+  ownership.claims = {flexid::ownership_t::kAdopted};
+  ownership.first_seen_utime = {1};
+  ownership.num_claims = 1;
+  ownership.num_peers = 0;
+  std::vector<uint8_t> bytes = Encode(ownership);
+  // The claim's id: after fingerprint 8, utime 8, "lab-a" 4+6, "i" 4+2, count 2.
+  const size_t id_at = 8 + 8 + 10 + 6 + 2;
+  ASSERT_EQ(bytes[id_at + 3], 3);  // "S1\0"
+  std::vector<uint8_t> bad = bytes;
+  bad[id_at + 3] = 0x7F;  // a length beyond the message
+  EXPECT_FALSE(WellFormed(bad.data(), bad.size(), kOwnership));
+  bad = bytes;
+  bad[id_at + 4 + 1] = 0;  // "S\0\0": a NUL inside the string
+  EXPECT_FALSE(WellFormed(bad.data(), bad.size(), kOwnership));
+  // One claim more than the arrays hold.
+  bad = bytes;
+  bad[id_at - 1] = 2;
+  EXPECT_FALSE(WellFormed(bad.data(), bad.size(), kOwnership));
 }
 
 TEST(WireCheck, RefusesStringLengthsTheGeneratedDecoderWouldTrust) {

@@ -1,13 +1,14 @@
 // flexid alerts list|follow: the residual monitor's and the diagnosis's alerts.
 //
 //   flexid alerts list [--actuator ID] [--since-utime U] [--limit N] [--json]
-//       stored alerts, newest first, from flexidd (online) or the --db file
+//       stored alerts, newest first, from every flexidd (online) or every --db file
 //   flexid alerts follow [--actuator ID] [--kind K] [--seconds S] [--json]
 //       online only: each alert on PREFIX/ALERT (--channel-prefix) as it arrives, one line each,
 //       until S seconds have passed or SIGINT/SIGTERM (exit 0). With --json every line is one JSON
 //       object (JSON Lines): the one exception to "--json prints one document", since the stream
 //       has no end. Its objects have the shape of `alerts list --json` items without "id"
 //       (a live alert has no stored id yet).
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <flexid/alert_t.hpp>
@@ -78,17 +79,25 @@ void RunList(const ListArgs& args) {
     if (*args.limit < 1 || *args.limit > 10000) throw UsageError("--limit must be 1 .. 10000");
     query["limit"] = *args.limit;
   }
-  const nlohmann::json list = Query("alerts", query);
+  // Every source's alerts, newest first, at most --limit of them in all.
+  const Gathered gathered = Gather("alerts", query);
+  PrintNotes(gathered);
+  const nlohmann::json list = NewestFirst(MergedRows(gathered), "utime", args.limit.value_or(100));
   if (args.as_json) {
-    std::cout << list.dump(2) << "\n";
+    std::cout << MergedDocument(gathered, "alerts", list).dump(2) << "\n";
     return;
   }
   if (list.empty()) {
     std::cout << "no alerts" << (args.actuator.empty() ? "" : " of " + args.actuator) << "\n";
     return;
   }
-  Table table({"time (UTC)", "actuator", "kind", "severity", "magnitude_mm", "text"});
-  for (const nlohmann::json& a : list) table.AddRow(AlertCells(a));
+  Table table(
+      {SourceHeader(), "time (UTC)", "actuator", "kind", "severity", "magnitude_mm", "text"});
+  for (const nlohmann::json& a : list) {
+    std::vector<std::string> cells = AlertCells(a);
+    cells.insert(cells.begin(), SourceCell(gathered, a));
+    table.AddRow(cells);
+  }
   table.Print(std::cout, "");
 }
 

@@ -1,5 +1,6 @@
 // Low-level bus commands: `flexid rpc METHOD [ARGS_JSON]` sends any request to flexidd and
-// prints the reply; `flexid watch` prints live predictions and alerts, then a summary.
+// prints the first reply (with --daemon ID, that daemon's); `flexid watch` prints live predictions
+// and alerts, then a summary.
 #include <cmath>
 #include <flexid/alert_t.hpp>
 #include <flexid/prediction_t.hpp>
@@ -11,6 +12,7 @@
 #include "clients/cli/bus.h"
 #include "clients/cli/command.h"
 #include "clients/cli/format.h"
+#include "clients/cli/source.h"
 #include "lcmtypes/wire_check.h"
 
 namespace flexid::cli {
@@ -28,8 +30,11 @@ void RunRpc(const RpcArgs& args) {
     throw UsageError("ARGS: expected a JSON object, got " + args.args_json);
   if (!(args.timeout_s > 0.0) || !std::isfinite(args.timeout_s))
     throw UsageError("--timeout must be > 0");
+  if (DaemonIds().size() > 1)
+    throw UsageError("rpc sends one request to one daemon: give --daemon once");
   const RpcResult r = CallDaemon(
-      args.method, parsed, std::chrono::milliseconds(static_cast<int64_t>(args.timeout_s * 1000)));
+      args.method, parsed, std::chrono::milliseconds(static_cast<int64_t>(args.timeout_s * 1000)),
+      DaemonIds().empty() ? "" : DaemonIds().front());
   if (r.status == flexid::rpc_reply_t::kOk) {
     std::cout << r.result.dump(2) << "\n";
     return;

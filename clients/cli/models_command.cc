@@ -36,9 +36,13 @@ struct ListArgs {
 
 void RunList(const ListArgs& args) {
   RequireActuator(args.actuator);
-  const json list = Query("models", {{"actuator", args.actuator}});
+  // From every daemon (or file) that holds the actuator: its owner's, and any another
+  // daemon's file holds from when it recorded it.
+  const Gathered gathered = Gather("models", {{"actuator", args.actuator}});
+  PrintNotes(gathered);
+  const json list = MergedRows(gathered);
   if (args.json) {
-    std::cout << list.dump(2) << "\n";
+    std::cout << MergedDocument(gathered, "models", list).dump(2) << "\n";
     return;
   }
   if (list.empty()) {
@@ -51,12 +55,12 @@ void RunList(const ListArgs& args) {
     if (m.value("active", false)) active = m.value("version", int64_t{0});
   std::cout << args.actuator << ": " << list.size() << (list.size() == 1 ? " model" : " models")
             << (active ? " (v" + std::to_string(active) + " active)" : " (none active)") << "\n";
-  Table table({"version", "created (UTC)", "active", "trials", "levels V", "fit %", "RMSE mm",
-               "samples", "flexid", "proposed from"});
+  Table table({SourceHeader(), "version", "created (UTC)", "active", "trials", "levels V", "fit %",
+               "RMSE mm", "samples", "flexid", "proposed from"});
   for (const json& m : list) {
     const json fit = m.value("fit", json());
     const double samples = NumberIn(fit, "samples");
-    table.AddRow({std::to_string(m.value("version", int64_t{0})),
+    table.AddRow({SourceCell(gathered, m), std::to_string(m.value("version", int64_t{0})),
                   IsoUtc(m.value("created_utime", int64_t{0})), m.value("active", false) ? "*" : "",
                   JoinNumbers(m.value("trials", json()), ","),
                   JoinNumbers(fit.is_object() ? fit.value("levels_V", json()) : json(), ","),
@@ -84,7 +88,9 @@ void RunActivate(const ActivateArgs& args) {
   RequireActuator(args.actuator);
   const int32_t version = ParseVersion(args.version, "VERSION");
   if (version == 0) throw UsageError("VERSION: name the version to activate, e.g. 2");
-  const json list = Query("models", {{"actuator", args.actuator}});
+  // The versions of the daemon that would activate it (the actuator's owner), or the file's.
+  const std::string target = Offline() ? DbPath() : TargetDaemon("model_activate", args.actuator);
+  const json list = Query("models", {{"actuator", args.actuator}}, target);
   const int32_t previous = ActiveVersion(list);
   const bool exists = std::any_of(list.begin(), list.end(), [version](const json& m) {
     return m.value("version", 0) == version;
@@ -101,7 +107,7 @@ void RunActivate(const ActivateArgs& args) {
     }
   } else {
     CallOnline("model_activate", {{"actuator", args.actuator}, {"version", version}},
-               kQueryTimeout_s);
+               kQueryTimeout_s, target);
   }
   if (args.json) {
     std::cout << json{{"actuator", args.actuator},

@@ -1,11 +1,15 @@
 // flexid status, flexid actuators: what flexidd is doing (online, --lcm URL) or what a
 // database file holds (offline, --db PATH).
 //
-//   flexid status [--json]      online: the daemon's counters (RPC "status");
-//                               offline: the file's summary (actuators, trials, samples, ...)
-//   flexid actuators [--json]   id, geometry, material and electrolyte, active model version,
+//   flexid status [--json]      online: each daemon's counters (RPC "status"), a column each;
+//                               offline: each file's summary (actuators, trials, samples, ...)
+//   flexid actuators [--json]   every daemon's (or file's) actuators: the daemon, its claim,
+//                               geometry, material and electrolyte, active model version,
 //                               trial being recorded
+#include <algorithm>
+#include <flexid/rpc_reply_t.hpp>
 #include <iostream>
+#include <iterator>
 
 #include "clients/cli/bus.h"
 #include "clients/cli/command.h"
@@ -43,6 +47,17 @@ std::string Cell(const nlohmann::json& value) {
   if (value.is_boolean()) return value.get<bool>() ? "yes" : "no";
   if (value.is_number_float()) return FormatNumber(value.get<double>(), 6);
   if (value.is_null()) return "-";
+  // The daemons a daemon heard ("peers"): "lab-a (0.4 s ago)".
+  if (value.is_object() && value.contains("daemon_id") && value.contains("last_heard_s"))
+    return Cell(value["daemon_id"]) + " (" +
+           (value["last_heard_s"].is_number() ? FormatNumber(value["last_heard_s"].get<double>(), 2)
+                                              : std::string("?")) +
+           " s ago)";
+  if (value.is_array()) {  // "S1, S2"; "-" when empty
+    std::string text;
+    for (const nlohmann::json& item : value) text += (text.empty() ? "" : ", ") + Cell(item);
+    return text.empty() ? "-" : text;
+  }
   return value.dump();
 }
 
@@ -50,21 +65,40 @@ struct StatusArgs {
   bool as_json = false;
 };
 
+// One column per source: each daemon's counters (or each file's summary) side by side.
 void RunStatus(const StatusArgs& args) {
-  const nlohmann::json status = Query("status", nlohmann::json::object());
+  const Gathered gathered = Gather("status", nlohmann::json::object());
+  PrintNotes(gathered);
+  nlohmann::json statuses = nlohmann::json::array();
+  std::vector<std::string> header = {"item"};
+  for (const SourceAnswer& a : gathered.answers) {
+    if (a.status != flexid::rpc_reply_t::kOk) continue;
+    if (!a.result.is_object()) throw OperationError("status: unexpected reply " + a.result.dump());
+    nlohmann::json status = a.result;
+    if (a.database.empty()) status["daemon_id"] = a.daemon_id;
+    statuses.push_back(status);
+    header.push_back(a.Name());
+  }
+  if (statuses.empty()) ThrowNoResult(gathered);
   if (args.as_json) {
-    std::cout << status.dump(2) << "\n";
+    std::cout << MergedDocument(gathered, "status", statuses).dump(2) << "\n";
     return;
   }
-  if (!status.is_object()) throw OperationError("status: unexpected reply " + status.dump());
-  std::cout << (Offline() ? "database file " + DbPath() : "flexidd on " + LcmUrl()) << "\n";
-  Table table({"item", "value"});
-  for (const char* key : kStatusOrder)
-    if (status.contains(key)) table.AddRow({key, Cell(status.at(key))});
-  for (const auto& [key, value] : status.items()) {
-    bool listed = false;
-    for (const char* known : kStatusOrder) listed = listed || key == known;
-    if (!listed) table.AddRow({key, Cell(value)});
+  std::cout << (Offline() ? "database file" : "flexidd on " + LcmUrl()) << "\n";
+  std::vector<std::string> keys(std::begin(kStatusOrder), std::end(kStatusOrder));
+  for (const nlohmann::json& status : statuses)
+    for (const auto& item : status.items())
+      if (std::find(keys.begin(), keys.end(), item.key()) == keys.end()) keys.push_back(item.key());
+  std::sort(keys.begin() + static_cast<std::ptrdiff_t>(std::size(kStatusOrder)), keys.end());
+  Table table(header);
+  for (const std::string& key : keys) {
+    std::vector<std::string> row = {key};
+    bool any = false;
+    for (const nlohmann::json& status : statuses) {
+      any = any || status.contains(key);
+      row.push_back(status.contains(key) ? Cell(status.at(key)) : "-");
+    }
+    if (any) table.AddRow(row);
   }
   table.Print(std::cout);
 }
@@ -73,17 +107,26 @@ struct ActuatorsArgs {
   bool as_json = false;
 };
 
+// Every source's actuators, each row naming its daemon (or file) and, online, its claim:
+// "configured" or "adopted" where that daemon records it, "none" where its file only knows
+// it ("owner" then names the daemon that records it, when one is heard claiming it).
 void RunActuators(const ActuatorsArgs& args) {
-  const nlohmann::json list = Query("actuators", nlohmann::json::object());
+  const Gathered gathered = Gather("actuators", nlohmann::json::object());
+  PrintNotes(gathered);
+  nlohmann::json list = MergedRows(gathered);
+  std::stable_sort(list.begin(), list.end(), [](const nlohmann::json& a, const nlohmann::json& b) {
+    return a.value("id", "") < b.value("id", "");
+  });
   if (args.as_json) {
-    std::cout << list.dump(2) << "\n";
+    std::cout << MergedDocument(gathered, "actuators", list).dump(2) << "\n";
     return;
   }
   if (list.empty()) {
     std::cout << "no actuators\n";
     return;
   }
-  Table table({"id", "geometry_mm (LxWxh)", "material", "electrolyte", "model", "recording"});
+  Table table({SourceHeader(), "id", "claim", "geometry_mm (LxWxh)", "material", "electrolyte",
+               "model", "recording"});
   for (const nlohmann::json& a : list) {
     const std::string geometry = FormatNumber(a.value("length_mm", 0.0), 4) + " x " +
                                  FormatNumber(a.value("width_mm", 0.0), 4) + " x " +
@@ -92,7 +135,11 @@ void RunActuators(const ActuatorsArgs& args) {
         a.value("electrolyte", "") + " " + FormatNumber(a.value("concentration_M", 0.0), 4) + " M";
     const int64_t version = a.value("model_version", int64_t{0});
     const int64_t trial = a.value("trial", int64_t{0});
-    table.AddRow({a.value("id", ""), geometry, a.value("material", ""), electrolyte,
+    std::string claim = a.value("claim", "-");
+    const nlohmann::json owner = a.value("owner", nlohmann::json());
+    if (claim == "none" && owner.is_string()) claim = "none (" + owner.get<std::string>() + "'s)";
+    table.AddRow({SourceCell(gathered, a), a.value("id", ""), claim, geometry,
+                  a.value("material", ""), electrolyte,
                   version > 0 ? "v" + std::to_string(version) : "none",
                   trial > 0 ? "trial " + std::to_string(trial) : "-"});
   }

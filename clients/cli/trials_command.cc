@@ -1,7 +1,7 @@
 // flexid trials list|show|export|import|start|stop: the stored trials of flexidd (online,
 // --lcm URL) or of a database file (offline, --db PATH).
 //
-//   flexid trials list [--actuator ID] [--limit N] [--json]
+//   flexid trials list [--actuator ID] [--limit N] [--json]   (every daemon, or every --db)
 //   flexid trials show ID [--json]
 //   flexid trials export ID [--out FILE.csv]
 //   flexid trials import FILE.csv|FILE.lcmlog --actuator ID [--protocol TEXT]
@@ -53,20 +53,25 @@ void RunList(const ListArgs& args) {
     if (*args.limit < 1 || *args.limit > 10000) throw UsageError("--limit must be 1 .. 10000");
     query["limit"] = *args.limit;
   }
-  const nlohmann::json list = Query("trials", query);
-  if (args.as_json) return PrintJson(list);
+  // Every source's trials, newest first, at most --limit of them in all.
+  const Gathered gathered = Gather("trials", query);
+  PrintNotes(gathered);
+  const nlohmann::json list =
+      NewestFirst(MergedRows(gathered), "start_utime", args.limit.value_or(100));
+  if (args.as_json) return PrintJson(MergedDocument(gathered, "trials", list));
   if (list.empty()) {
     std::cout << "no trials" << (args.actuator.empty() ? "" : " of " + args.actuator) << "\n";
     return;
   }
-  Table table({"id", "actuator", "protocol", "start (UTC)", "start_utime", "duration_s", "state",
-               "samples"});
+  Table table({SourceHeader(), "id", "actuator", "protocol", "start (UTC)", "start_utime",
+               "duration_s", "state", "samples"});
   for (const nlohmann::json& item : list) {
     const storage::Trial t = TrialFromJson(item);
     const auto duration = DurationOf(t);
-    table.AddRow({std::to_string(t.id), t.actuator_id, t.protocol, FormatUtcTime(t.start_utime),
-                  std::to_string(t.start_utime), duration ? FormatNumber(*duration, 6) : "-",
-                  storage::TrialStateName(t.state), std::to_string(t.samples)});
+    table.AddRow({SourceCell(gathered, item), std::to_string(t.id), t.actuator_id, t.protocol,
+                  FormatUtcTime(t.start_utime), std::to_string(t.start_utime),
+                  duration ? FormatNumber(*duration, 6) : "-", storage::TrialStateName(t.state),
+                  std::to_string(t.samples)});
   }
   table.Print(std::cout, "");
 }

@@ -34,8 +34,9 @@ constexpr double kControlTimeout_s = 10.0;
 // before the bus is joined and anything is sent.
 class Publisher {
  public:
-  explicit Publisher(const std::string& actuator)
-      : key_(SigningKey()), lcm_(LcmUrl()), publisher_(lcm_, BusChannels(), actuator, &key_) {
+  // `daemon`: the one that will record the actuator, whose key signs the trial control.
+  Publisher(const std::string& actuator, const std::string& daemon)
+      : key_(SigningKey(daemon)), lcm_(LcmUrl()), publisher_(lcm_, BusChannels(), actuator, &key_) {
     if (!lcm_.good()) throw OperationError("cannot join the LCM bus at " + LcmUrl());
   }
   void Sample(const BusSample& m) {
@@ -60,8 +61,9 @@ class Publisher {
 
 // The trial flexidd is recording for the actuator (0: none); *known says whether flexidd
 // lists the actuator at all.
-int64_t RecordingTrial(const std::string& actuator, bool* known = nullptr) {
-  for (const nlohmann::json& a : Query("actuators", nlohmann::json::object()))
+int64_t RecordingTrial(const std::string& actuator, const std::string& daemon,
+                       bool* known = nullptr) {
+  for (const nlohmann::json& a : Query("actuators", nlohmann::json::object(), daemon))
     if (a.value("id", "") == actuator) {
       if (known) *known = true;
       return a.value("trial", int64_t{0});
@@ -71,8 +73,8 @@ int64_t RecordingTrial(const std::string& actuator, bool* known = nullptr) {
 }
 
 // The stored trial as flexidd reports it (its sample count is what it has committed).
-storage::Trial DaemonTrial(int64_t id) {
-  return TrialFromJson(Query("trial_samples", {{"trial", id}, {"limit", 1}}).at("trial"));
+storage::Trial DaemonTrial(int64_t id, const std::string& daemon) {
+  return TrialFromJson(Query("trial_samples", {{"trial", id}, {"limit", 1}}, daemon).at("trial"));
 }
 
 constexpr const char* kRejectionCounters[] = {"rejected_out_of_order", "rejected_malformed",
@@ -91,17 +93,22 @@ std::string CounterDeltas(const nlohmann::json& before, const nlohmann::json& af
 
 class Replay {
  public:
+  // The daemon that records the actuator (its owner; with several daemons and no owner,
+  // name one with --daemon) is the one whose storing is watched.
   Replay(const ImportPlan& plan, Progress* progress)
-      : plan_(plan), progress_(progress), publisher_(plan.actuator) {}
+      : plan_(plan),
+        progress_(progress),
+        daemon_(TargetDaemon("trials import", plan.actuator)),
+        publisher_(plan.actuator, daemon_) {}
 
   std::vector<StoredImport> Run() {
     bool known = false;
-    const int64_t busy = RecordingTrial(plan_.actuator, &known);
+    const int64_t busy = RecordingTrial(plan_.actuator, daemon_, &known);
     if (busy != 0)
       throw UsageError(plan_.actuator + " is recording trial " + std::to_string(busy) +
                        "; stop it first (flexid trials stop --actuator " + plan_.actuator + ")");
     if (known) CheckAfterStoredTimes();
-    status_before_ = Query("status", nlohmann::json::object());
+    status_before_ = Query("status", nlohmann::json::object(), daemon_);
     std::vector<StoredImport> out;
     for (const ImportTrial& trial : plan_.trials) out.push_back(PlayTrial(trial));
     return out;
@@ -114,7 +121,7 @@ class Replay {
   void CheckAfterStoredTimes() {
     int64_t latest = std::numeric_limits<int64_t>::min();
     for (const nlohmann::json& t :
-         Query("trials", {{"actuator", plan_.actuator}, {"limit", 10000}}))
+         Query("trials", {{"actuator", plan_.actuator}, {"limit", 10000}}, daemon_))
       latest = std::max({latest, t.value("start_utime", latest), t.value("end_utime", latest)});
     int64_t first = plan_.trials.front().start_utime;
     if (!plan_.trials.front().messages.empty())
@@ -161,7 +168,7 @@ class Replay {
     storage::Trial final_state = stored;
     while (final_state.state == storage::TrialState::kRecording && Clock::now() < end) {
       std::this_thread::sleep_for(std::chrono::milliseconds(20));
-      final_state = DaemonTrial(id);
+      final_state = DaemonTrial(id, daemon_);
     }
     if (final_state.state == storage::TrialState::kRecording)
       throw OperationError("flexidd did not end trial " + std::to_string(id) + " within " +
@@ -182,7 +189,7 @@ class Replay {
     const auto end = Clock::now() + Seconds(kControlTimeout_s);
     while (Clock::now() < end) {
       CheckStop(0, trial);
-      if (const int64_t id = RecordingTrial(plan_.actuator); id > last_trial_) {
+      if (const int64_t id = RecordingTrial(plan_.actuator, daemon_); id > last_trial_) {
         last_trial_ = id;
         return id;
       }
@@ -199,14 +206,14 @@ class Replay {
   // be stored (e.g. out of order: the actuator already had newer messages).
   storage::Trial AwaitStored(int64_t id, const ImportTrial& trial, int64_t target,
                              bool stop_sent = false) {
-    storage::Trial t = DaemonTrial(id);
+    storage::Trial t = DaemonTrial(id, daemon_);
     int64_t seen = t.samples;
     auto last_progress = Clock::now();
     while (t.samples < target) {
       CheckStop(id, trial);
       const double idle_s = std::chrono::duration<double>(Clock::now() - last_progress).count();
       if (idle_s > 1.0) {
-        const nlohmann::json status = Query("status", nlohmann::json::object());
+        const nlohmann::json status = Query("status", nlohmann::json::object(), daemon_);
         if (idle_s > kReplayStall_s || Rejections(status) >= target - t.samples) {
           publisher_.Control(trial.end_utime, false, trial.protocol);
           throw OperationError("flexidd stored " + std::to_string(t.samples) + " of " +
@@ -218,7 +225,7 @@ class Replay {
         }
       }
       std::this_thread::sleep_for(std::chrono::milliseconds(20));
-      t = DaemonTrial(id);
+      t = DaemonTrial(id, daemon_);
       if (!stop_sent && t.state != storage::TrialState::kRecording) {
         // Ended before its stop message: flexidd saw a clock jump, or someone stopped it.
         publisher_.Control(trial.end_utime, false, trial.protocol);
@@ -256,6 +263,7 @@ class Replay {
 
   const ImportPlan& plan_;
   Progress* progress_;
+  std::string daemon_;
   Publisher publisher_;
   StopOnSignal stop_;
   nlohmann::json status_before_;

@@ -13,6 +13,7 @@
 #include <flexid/rpc_request_t.hpp>
 #include <flexid/voltage_sample_t.hpp>
 
+#include "bus/fan_out.h"
 #include "bus/ids.h"
 #include "bus/rpc_client.h"
 #include "clients/dashboard/model_versions.h"
@@ -59,6 +60,7 @@ BusAdapter::BusAdapter(lcm::LCM& lcm, LiveStore& store, BusOptions options)
   Subscribe<&BusAdapter::HandlePrediction>(channels_.AllPredictions(), 1 << 16);
   Subscribe<&BusAdapter::HandleAlert>(bus::Exactly(channels_.Alert()), 1000);
   Subscribe<&BusAdapter::HandleReply>(bus::Exactly(channels_.RpcReply(options_.client_id)), 100);
+  Subscribe<&BusAdapter::HandleOwnership>(bus::Exactly(channels_.Ownership()), 1000);
   next_batch_ = Clock::now() + options_.batch_interval;
 }
 
@@ -138,44 +140,75 @@ void BusAdapter::HandleReply(const lcm::ReceiveBuffer* rbuf, const std::string&)
   }
   const flexid::rpc_reply_t& reply = *decoded;
   const auto it = pending_.find(reply.request_id);
-  if (it == pending_.end()) return;  // expired, or another dashboard's
+  if (it == pending_.end()) return;  // expired, answered, or another dashboard's
+  if (it->second.method == "alerts") {
+    HandleAlerts(&it->second, reply);
+    return;
+  }
+  // A daemon that does not hold the actuator: another may (several daemons, unaddressed).
+  if (reply.status == flexid::rpc_reply_t::kNotFound) {
+    it->second.not_found = reply.daemon_id + ": " + reply.error;
+    return;
+  }
   const PendingCall call = it->second;
   pending_.erase(it);
-  const bool ok = reply.status == flexid::rpc_reply_t::kOk;
-  if (call.method == "models") {
+  if (call.method == "models")
     HandleVersions(call, reply);
-    return;
-  }
+  else if (call.method == "model")
+    HandleModel(call, reply);
+}
+
+// Every daemon's recent alerts, each daemon's reply once, until the request expires.
+void BusAdapter::HandleAlerts(PendingCall* call, const flexid::rpc_reply_t& reply) {
+  if (!call->answered.insert(reply.daemon_id).second) return;  // a duplicate
+  const bool ok = reply.status == flexid::rpc_reply_t::kOk;
   const nlohmann::json result =
       ok ? nlohmann::json::parse(reply.result_json, nullptr, false) : nlohmann::json();
-  const auto retry_after = Clock::now() + options_.rpc_retry;
-  if (call.method == "alerts") {
-    alerts_in_flight_ = false;
-    if (!ok || !result.is_array()) {
-      store_.NoteBadReply("alerts: " + (ok ? std::string("expected an array of alerts")
-                                           : "flexidd answered: " + reply.error));
-      alerts_retry_after_ = retry_after;
-      return;
-    }
-    alerts_loaded_ = true;
-    for (const nlohmann::json& item : result)
-      if (const std::optional<Alert> a = AlertFromJson(item)) store_.AddAlert(*a);
+  if (!ok || !result.is_array()) {
+    store_.NoteBadReply("alerts: " +
+                        (ok ? std::string("expected an array of alerts")
+                            : "flexidd " + reply.daemon_id + " answered: " + reply.error));
     return;
   }
-  if (call.method == "model") {
-    ModelFetch& fetch = models_[call.actuator_id];
-    fetch.in_flight = false;
-    const std::optional<nlohmann::json> summary = ok ? SummarizeModel(result) : std::nullopt;
-    if (!summary) {
-      store_.NoteBadReply("model " + std::to_string(call.version) + " of " + call.actuator_id +
-                          ": " +
-                          (ok ? std::string("expected an object with actuator and version")
-                              : "flexidd answered: " + reply.error));
-      fetch.retry_after = retry_after;
-      return;
-    }
-    store_.SetModel(*summary);
-    fetch.fetched = call.version;
+  alerts_loaded_ = true;
+  for (const nlohmann::json& item : result)
+    if (const std::optional<Alert> a = AlertFromJson(item)) store_.AddAlert(*a);
+}
+
+void BusAdapter::HandleModel(const PendingCall& call, const flexid::rpc_reply_t& reply) {
+  const bool ok = reply.status == flexid::rpc_reply_t::kOk;
+  const nlohmann::json result =
+      ok ? nlohmann::json::parse(reply.result_json, nullptr, false) : nlohmann::json();
+  ModelFetch& fetch = models_[call.actuator_id];
+  fetch.in_flight = false;
+  const std::optional<nlohmann::json> summary = ok ? SummarizeModel(result) : std::nullopt;
+  if (!summary) {
+    store_.NoteBadReply("model " + std::to_string(call.version) + " of " + call.actuator_id + ": " +
+                        (ok ? std::string("expected an object with actuator and version")
+                            : "flexidd answered: " + reply.error));
+    fetch.retry_after = Clock::now() + options_.rpc_retry;
+    return;
+  }
+  store_.SetModel(*summary);
+  fetch.fetched = call.version;
+}
+
+// Announcements (ownership_t): which daemon records which actuator, to address requests
+// to it and to name it on the page.
+void BusAdapter::HandleOwnership(const lcm::ReceiveBuffer* rbuf, const std::string&) {
+  const std::optional<flexid::ownership_t> message = bus::DecodeOwnership(*rbuf);
+  if (!message) {
+    store_.CountBadMessage();
+    return;
+  }
+  for (size_t i = 0; i < message->actuator_ids.size() && i < message->claims.size(); ++i) {
+    const std::string& id = message->actuator_ids[i];
+    const int8_t claim = message->claims[i];
+    if (!bus::IsValidId(id) ||
+        (claim != flexid::ownership_t::kConfigured && claim != flexid::ownership_t::kAdopted))
+      continue;
+    owners_[id] = message->daemon_id;
+    store_.SetDaemon(id, message->daemon_id);
   }
 }
 
@@ -193,6 +226,7 @@ void BusAdapter::HandleVersions(const PendingCall& call, const flexid::rpc_reply
     } else if (const std::optional<nlohmann::json> versions =
                    ModelVersionsFromJson(result, call.actuator_id, &problem)) {
       store_.SetModelVersions(call.actuator_id, *versions);
+      store_.SetDaemon(call.actuator_id, reply.daemon_id);
       fetch.failures = 0;
       fetch.not_before = now + options_.models_refresh_min;
       return;
@@ -227,7 +261,7 @@ void BusAdapter::RequestVersions(Clock::time_point now) {
     if (!fetch.wanted || fetch.in_flight || now < fetch.not_before) continue;
     fetch.wanted = false;
     fetch.in_flight = true;
-    SendRequest("models", {{"actuator", id}}, {"models", id, 0, {}});
+    SendRequest("models", {{"actuator", id}}, {"models", id, 0, {}, "", {}});
   }
 }
 
@@ -238,18 +272,50 @@ void BusAdapter::MaybeFetchModel(const std::string& actuator_id, int32_t version
   fetch.requested = version;
   fetch.in_flight = true;
   SendRequest("model", {{"actuator", actuator_id}, {"version", version}},
-              {"model", actuator_id, version, {}});
+              {"model", actuator_id, version, {}, "", {}});
 }
 
 void BusAdapter::SendRequest(const std::string& method, const nlohmann::json& args,
                              PendingCall call) {
-  // Read-only methods only: the dashboard holds no key.
-  const flexid::rpc_request_t request =
-      bus::MakeRequest(options_.client_id, bus::RandomRequestId(), method, args.dump(), nullptr);
+  // Read-only methods only: the dashboard holds no key. About an actuator whose owner was
+  // heard: to that daemon alone.
+  nlohmann::json addressed = args;
+  const auto owner = owners_.find(call.actuator_id);
+  if (!call.actuator_id.empty() && owner != owners_.end()) addressed["daemon_id"] = owner->second;
+  const flexid::rpc_request_t request = bus::MakeRequest(options_.client_id, bus::RandomRequestId(),
+                                                         method, addressed.dump(), nullptr);
   call.deadline = Clock::now() + options_.rpc_timeout;
   pending_[request.request_id] = std::move(call);
   lcm_.publish(channels_.RpcRequest(), &request);
   ++rpc_requests_sent_;
+}
+
+// A request's time is up: "alerts" is done (asked again if no daemon answered); the
+// others failed, with a daemon's "not found" if one said so.
+void BusAdapter::Expire(const PendingCall& call, Clock::time_point now) {
+  if (call.method == "alerts") {
+    alerts_in_flight_ = false;
+    if (!alerts_loaded_) alerts_retry_after_ = now + options_.rpc_retry;
+    return;
+  }
+  if (!call.not_found.empty()) {
+    flexid::rpc_reply_t reply;
+    reply.status = flexid::rpc_reply_t::kNotFound;
+    reply.daemon_id = call.not_found.substr(0, call.not_found.find(':'));
+    reply.error = call.not_found.substr(call.not_found.find(':') + 2);
+    if (call.method == "models")
+      HandleVersions(call, reply);
+    else
+      HandleModel(call, reply);
+    return;
+  }
+  if (call.method == "models") {
+    VersionsFailed(call.actuator_id, now);
+  } else {
+    ModelFetch& fetch = models_[call.actuator_id];
+    fetch.in_flight = false;
+    fetch.retry_after = now + options_.rpc_retry;
+  }
 }
 
 void BusAdapter::Tick(Clock::time_point now) {
@@ -262,22 +328,14 @@ void BusAdapter::Tick(Clock::time_point now) {
       ++it;
       continue;
     }
-    if (it->second.method == "alerts") {
-      alerts_in_flight_ = false;
-      alerts_retry_after_ = now + options_.rpc_retry;
-    } else if (it->second.method == "models") {
-      VersionsFailed(it->second.actuator_id, now);
-    } else {
-      ModelFetch& fetch = models_[it->second.actuator_id];
-      fetch.in_flight = false;
-      fetch.retry_after = now + options_.rpc_retry;
-    }
+    const PendingCall call = it->second;
     it = pending_.erase(it);
+    Expire(call, now);
   }
   if (!alerts_loaded_ && !alerts_in_flight_ && now >= alerts_retry_after_ &&
       options_.startup_alerts > 0) {
     alerts_in_flight_ = true;
-    SendRequest("alerts", {{"limit", options_.startup_alerts}}, {"alerts", "", 0, {}});
+    SendRequest("alerts", {{"limit", options_.startup_alerts}}, {"alerts", "", 0, {}, "", {}});
   }
   RequestVersions(now);
 }

@@ -20,6 +20,13 @@
 // are sent again after a pause; a reply that fails or does not parse is counted with its
 // reason (LiveStore::NoteBadReply) and asked again later.
 //
+// Several flexidd on one bus (docs/architecture.md, "Several daemons"): the adapter hears
+// their announcements (PREFIX/OWNERSHIP) and addresses "models" and "model" to the
+// actuator's owner ("daemon_id" in the arguments; the others ignore it). Unaddressed, every
+// daemon answers: the first that holds the actuator counts, and "not found" from the
+// others only counts when nobody holds it. "alerts" takes every daemon's reply (each
+// once) until the request expires. The page names each actuator's daemon.
+//
 // One thread runs Poll() (or Run()); LCM's handlers run inside it, so nothing here needs a
 // lock. The store is the only state shared with the HTTP server.
 #pragma once
@@ -30,6 +37,7 @@
 #include <flexid/rpc_reply_t.hpp>
 #include <lcm/lcm-cpp.hpp>
 #include <map>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -74,6 +82,8 @@ class BusAdapter {
     std::string actuator_id;
     int32_t version = 0;
     Clock::time_point deadline;
+    std::string not_found;           // a daemon's "not found", kept until one holds it
+    std::set<std::string> answered;  // "alerts": the daemons whose alerts came
   };
   struct ModelFetch {
     int32_t fetched = 0;    // version whose summary the store has
@@ -97,6 +107,10 @@ class BusAdapter {
   void HandlePrediction(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
   void HandleAlert(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
   void HandleReply(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
+  void HandleOwnership(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
+  void HandleAlerts(PendingCall* call, const flexid::rpc_reply_t& reply);
+  void HandleModel(const PendingCall& call, const flexid::rpc_reply_t& reply);
+  void Expire(const PendingCall& call, Clock::time_point now);
   void HandleVersions(const PendingCall& call, const flexid::rpc_reply_t& reply);
   void VersionsFailed(const std::string& actuator_id, Clock::time_point now);
   void MaybeFetchModel(const std::string& actuator_id, int32_t version);
@@ -112,6 +126,7 @@ class BusAdapter {
   std::map<std::string, PendingCall> pending_;     // by request id
   std::map<std::string, ModelFetch> models_;       // by actuator
   std::map<std::string, VersionsFetch> versions_;  // by actuator
+  std::map<std::string, std::string> owners_;      // actuator -> daemon that records it
   uint64_t page_loads_seen_ = 0;
   bool alerts_loaded_ = false;
   bool alerts_in_flight_ = false;

@@ -423,6 +423,14 @@ void LiveStore::SetModelVersionsProblem(const std::string& actuator_id,
   AppendEvent("versions", event);
 }
 
+void LiveStore::SetDaemon(const std::string& actuator_id, const std::string& daemon_id) {
+  std::lock_guard lock(mutex_);
+  std::string& known = daemons_[actuator_id];
+  if (known == daemon_id) return;
+  known = daemon_id;
+  AppendEvent("daemon", {{"actuator", actuator_id}, {"daemon", daemon_id}});
+}
+
 void LiveStore::CountBadMessage() {
   std::lock_guard lock(mutex_);
   ++counters_.bad_messages;
@@ -495,6 +503,7 @@ json LiveStore::StateJson() const {
     for (size_t i = 0; i < all.size(); ++i) all[i] = i;
     actuators.push_back(
         {{"id", id},
+         {"daemon", daemons_.count(id) ? json(daemons_.at(id)) : json(nullptr)},
          {"received", s.received},
          {"samples", s.samples},
          {"model_version", s.model_version},

@@ -35,6 +35,7 @@
 //   alert:  AlertJson(alert)       model: SummarizeModel(...)       resync: {}
 //   versions: {"actuator", "versions": ModelVersionsFromJson(...) or null, "total" (versions
 //             flexidd has), "problem": null or why flexidd gave no list}
+//   daemon: {"actuator", "daemon"}: the flexidd that records the actuator
 #pragma once
 
 #include <chrono>
@@ -190,6 +191,10 @@ class LiveStore {
   // have yet with an error (e.g. an actuator it refuses): the page says so instead of
   // "asking". A list already stored stays.
   void SetModelVersionsProblem(const std::string& actuator_id, const std::string& problem);
+  // The flexidd that records the actuator (several daemons on one bus): kept for
+  // /api/state ("daemon") and sent as a "daemon" event when it changes. Does not create a
+  // card.
+  void SetDaemon(const std::string& actuator_id, const std::string& daemon_id);
   void CountBadMessage();
   // An RPC reply that failed or did not parse: counted, and `problem` (one line) kept as
   // the last problem for /api/state and /healthz.
@@ -205,8 +210,9 @@ class LiveStore {
   size_t FlushBatch(Clock::time_point now = Clock::now());
 
   // /api/state: {"event_id", "counters", "last_problem", "actuators": [{"id", "received",
-  // "samples", "model_version", "trial", "latest", "memberships", "model", "versions"
-  // (null until flexidd answered), "versions_total", "versions_problem", "history":
+  // "samples", "daemon" (null until heard), "model_version", "trial", "latest",
+  // "memberships", "model", "versions" (null until flexidd answered), "versions_total",
+  // "versions_problem", "history":
   // {"t_s", ...}}], "alerts" (newest first)}.
   nlohmann::json StateJson() const;
   Counters counters() const;
@@ -263,7 +269,8 @@ class LiveStore {
   mutable std::mutex mutex_;
   mutable std::condition_variable changed_;
   std::map<std::string, Series> series_;
-  std::deque<Alert> alerts_;  // oldest first, by utime
+  std::map<std::string, std::string> daemons_;  // actuator -> daemon_id
+  std::deque<Alert> alerts_;                    // oldest first, by utime
   std::deque<Event> events_;
   uint64_t next_event_id_ = 1;
   bool closed_ = false;

@@ -7,7 +7,8 @@
 //
 // Data flow: GET /api/state (a snapshot, with the id of the last event it contains), then
 // an EventSource on /events?after=ID: "points" (batched, decimated points of every
-// actuator), "alert", "model", "versions" (an actuator's model version list), and
+// actuator), "alert", "model", "versions" (an actuator's model version list), "daemon"
+// (the flexidd that records an actuator, when several share the bus), and
 // "resync" (the stream fell behind: load the snapshot again). When the stream breaks (the
 // server restarted), the page loads the snapshot again and reopens the stream, waiting
 // 1 s, then up to 10 s, between tries.
@@ -15,7 +16,8 @@
 // Hooks for tests: .card[data-actuator=ID] with data-points (points drawn so far),
 // data-chart-points (measured points in the deflection chart's data now), data-received
 // (predictions the server took), data-samples (deflection samples it took),
-// data-predicted ("true" once predictions show), data-model-version; in each card
+// data-predicted ("true" once predictions show), data-model-version, data-daemon (the
+// flexidd recording it, shown as .daemon); in each card
 // .versions[data-loaded] holding li.version[data-version][data-active][data-kind
 // identified|proposed][data-parent]; .alert[data-kind] in each card and in #alerts;
 // #connection[data-state] is connecting, live or reconnecting.
@@ -35,6 +37,7 @@
   };
 
   const cards = new Map();  // actuator id -> card
+  const daemons = new Map();  // actuator id -> the flexidd that records it
   const alertKeys = new Set();
   let windowS = 60;
   let source = null;
@@ -100,9 +103,10 @@
 
     const head = el('header', 'card-head');
     head.append(el('h2', 'name', id));
+    const daemon = el('span', 'daemon', '');
     const trial = el('span', 'trial', '');
     const counter = el('span', 'points', '0 points');
-    head.append(trial, counter);
+    head.append(daemon, trial, counter);
 
     const readout = el('div', 'readout', 'no sample yet');
     const model = el('div', 'model', 'model: none yet');
@@ -135,7 +139,7 @@
     $('empty').hidden = true;
 
     const card = {
-      id, root, trial, counter, readout, model, versions, alerts, none,
+      id, root, daemon, trial, counter, readout, model, versions, alerts, none,
       data: {t: [], v: [], measured: [], predicted: [], residual: []},
       points: 0,
       predicted: false,  // predictions seen: the predicted line and the residual chart show
@@ -157,6 +161,7 @@
     cards.set(id, card);
     showPredicted(card);
     showModel(card);
+    showDaemon(id, daemons.get(id));
     return card;
   }
 
@@ -422,6 +427,16 @@
       (counters.bad_replies ? ' · bad replies from flexidd ' + counters.bad_replies.toLocaleString() : '');
   }
 
+  // The flexidd that records an actuator, on its card (when it has one yet).
+  function showDaemon(id, daemonId) {
+    if (!daemonId) return;
+    daemons.set(id, daemonId);
+    const c = cards.get(id);
+    if (!c) return;
+    c.root.dataset.daemon = daemonId;
+    c.daemon.textContent = 'flexidd ' + daemonId;
+  }
+
   // ---- the stream ---------------------------------------------------------------------
 
   function applyState(state) {
@@ -444,6 +459,7 @@
       c.modelInfo = a.model;
       showModel(c);
       showVersions(c, a.versions, a.versions_total, a.versions_problem);
+      showDaemon(a.id, a.daemon);
       setReadout(c, a.latest, a.received, a.samples, a.trial, a.memberships);
       c.alerts.querySelectorAll('.alert').forEach((n) => n.remove());
       c.none.hidden = false;
@@ -518,6 +534,10 @@
         source.addEventListener('versions', (e) => {
           const v = JSON.parse(e.data);
           showVersions(card(v.actuator), v.versions, v.total, v.problem);
+        });
+        source.addEventListener('daemon', (e) => {
+          const d = JSON.parse(e.data);
+          showDaemon(d.actuator, d.daemon);
         });
         source.addEventListener('resync', () => reconnect(0));
         source.onerror = () => reconnect(retryMs);
