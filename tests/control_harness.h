@@ -3,10 +3,10 @@
 // integrators: the T-S plant of ts_plant.h and the effect lab of effect_plant.h. Used by
 // tests/control_plant_test.cc and bench/control_bench.cc.
 //
-// The loop (model/control/controller.h): at t_k = k Ts the plant's deflection is
-// measured (noise added), the controller decides u_{k+1}; the plant is held at u_k over
-// [t_k, t_{k+1}) and the applied voltage reaches it a dead time later, as in the plants'
-// own protocols.
+// The loop (model/control/controller.h): at t_k = k Ts the plant gets u_k (decided at
+// k - 1; 0 V at k = 0) and its deflection is measured (noise added); the controller decides
+// u_{k+1}. The plant holds u_k over [t_k, t_{k+1}), and the applied voltage reaches it a
+// dead time later, as in the plants' own protocols.
 #pragma once
 
 #include <algorithm>
@@ -26,24 +26,47 @@ namespace flexid::testing {
 class LoopPlant {
  public:
   virtual ~LoopPlant() = default;
-  // The noise-free deflection at the current sample, mm.
+  // Sample k: voltage_V is applied from t_k (held to t_{k+1}); returns the measured
+  // deflection at t_k (clean_mm() plus the sensor noise), mm. The next call is sample k + 1.
+  virtual double Sample(double voltage_V) = 0;
+  // The noise-free deflection of the last sample, mm.
+  virtual double clean_mm() const = 0;
+};
+
+// The T-S plant and the effect lab sample their output, then integrate over the interval.
+class IntegratedPlant : public LoopPlant {
+ public:
+  double Sample(double voltage_V) override {
+    clean_mm_ = Clean();
+    const double measured = Measured();
+    Advance(voltage_V);
+    return measured;
+  }
+  double clean_mm() const override { return clean_mm_; }
+
+ protected:
   virtual double Clean() const = 0;
-  // The measured deflection at the current sample: Clean() plus the sensor noise, mm.
-  virtual double Measured() = 0;
-  // Holds voltage_V (applied) over [t_k, t_{k+1}) and moves to sample k + 1.
+  virtual double Measured() = 0;  // Clean() plus the sensor noise
   virtual void Advance(double voltage_V) = 0;
+
+ private:
+  double clean_mm_ = 0.0;
 };
 
 // ts_plant.h's plant: each rule in observer canonical form integrated by RK4, the
 // memberships on the delayed voltage, the applied voltage reaching the rules a dead time
 // later (between samples, where the switch falls).
-class TsPlantLoop : public LoopPlant {
+class TsPlantLoop : public IntegratedPlant {
  public:
   TsPlantLoop(const TsPlant& plant, uint64_t noise_seed)
       : plant_(plant), noise_(noise_seed), states_(plant.rules.size()) {
     SetVoltage(0.0);
   }
 
+  TsPlantLoop(const TsPlantLoop&) = delete;
+  TsPlantLoop& operator=(const TsPlantLoop&) = delete;
+
+ protected:
   double Clean() const override {
     double sum_mm = 0.0;
     for (size_t r = 0; r < states_.size(); ++r)
@@ -93,7 +116,7 @@ class TsPlantLoop : public LoopPlant {
 // on a voltage waveform that grows with every command (a first-order slew of
 // run.waveform's time constant towards each commanded level). Only the commands a dead
 // time and a few seconds back are kept in the waveform: older ones have settled.
-class EffectPlantLoop : public LoopPlant {
+class EffectPlantLoop : public IntegratedPlant {
  public:
   // run.plant, run.effect, run.sample_period_s, run.noise_std_mm, run.max_step_s and
   // run.noise_seed are used; run.waveform gives only the slew time constant.
@@ -104,6 +127,7 @@ class EffectPlantLoop : public LoopPlant {
   EffectPlantLoop(const EffectPlantLoop&) = delete;
   EffectPlantLoop& operator=(const EffectPlantLoop&) = delete;
 
+ protected:
   double Clean() const override { return dynamics_.Output(t_s_, state_); }
   double Measured() override { return Clean() + run_.noise_std_mm * noise_.Normal(); }
 
@@ -155,6 +179,8 @@ class EffectPlantLoop : public LoopPlant {
   long k_ = 0;
 };
 
+// The figures are over the samples from score_from_s on (RunLoop), the peak window charge
+// and the largest step over the whole run.
 struct LoopResult {
   std::vector<double> t_s, reference_mm, clean_mm, measured_mm, voltage_V, model_mm;
   double rmse_mm = 0.0;           // clean deflection against the reference
@@ -166,38 +192,38 @@ struct LoopResult {
 };
 
 // Runs the controller on the plant until its reference ends.
-inline LoopResult RunLoop(model::control::Controller& controller, LoopPlant& plant) {
+inline LoopResult RunLoop(model::control::Controller& controller, LoopPlant& plant,
+                          double score_from_s = 0.0) {
   LoopResult result;
   const double dt_s = controller.options().sample_period_s;
   double applied_V = 0.0;  // u_k
   for (long k = 0; !controller.Finished(k); ++k) {
-    const double clean = plant.Clean();
-    const double measured = plant.Measured();
+    const double measured = plant.Sample(applied_V);
     const model::control::ControlStep step = controller.Next(k, measured);
     result.t_s.push_back(static_cast<double>(k) * dt_s);
     result.reference_mm.push_back(step.reference_mm);
-    result.clean_mm.push_back(clean);
+    result.clean_mm.push_back(plant.clean_mm());
     result.measured_mm.push_back(measured);
     result.voltage_V.push_back(applied_V);
     result.model_mm.push_back(step.model_mm);
-    plant.Advance(applied_V);
     result.largest_step_V = std::max(result.largest_step_V, std::abs(step.voltage_V - applied_V));
     applied_V = step.voltage_V;
   }
-  const auto n = static_cast<double>(result.t_s.size());
   const auto window = static_cast<size_t>(
       std::max(1.0, std::round(controller.options().limits.charge_window_s / dt_s)));
-  double squares = 0.0, measured_squares = 0.0, volts = 0.0, in_window = 0.0;
+  double squares = 0.0, measured_squares = 0.0, volts = 0.0, in_window = 0.0, n = 0.0;
   for (size_t k = 0; k < result.t_s.size(); ++k) {
+    in_window += std::abs(result.voltage_V[k]) * dt_s;
+    if (k >= window) in_window -= std::abs(result.voltage_V[k - window]) * dt_s;
+    result.peak_window_charge_Vs = std::max(result.peak_window_charge_Vs, in_window);
+    if (result.t_s[k] < score_from_s - 1e-9) continue;
     const double error = result.clean_mm[k] - result.reference_mm[k];
     const double measured_error = result.measured_mm[k] - result.reference_mm[k];
     squares += error * error;
     measured_squares += measured_error * measured_error;
     volts += result.voltage_V[k] * result.voltage_V[k];
     result.charge_Vs += std::abs(result.voltage_V[k]) * dt_s;
-    in_window += std::abs(result.voltage_V[k]) * dt_s;
-    if (k >= window) in_window -= std::abs(result.voltage_V[k - window]) * dt_s;
-    result.peak_window_charge_Vs = std::max(result.peak_window_charge_Vs, in_window);
+    n += 1.0;
   }
   result.rmse_mm = std::sqrt(squares / n);
   result.measured_rmse_mm = std::sqrt(measured_squares / n);

@@ -100,13 +100,12 @@ ControlStep Controller::Next(long k, double measured_mm) {
 ControlStep Controller::Step(long k, double measured_mm) {
   last_k_ = k;
   const double t_s = static_cast<double>(k) * options_.sample_period_s;
-  const double applied_V = limiter_.last_V();  // u_k
   const bool missed = !std::isfinite(measured_mm);
   ControlStep step;
   step.reference_mm = reference_.At(t_s);
   step.model_mm = std::numeric_limits<double>::quiet_NaN();
   if (predictive_) {
-    step.wanted_V = predictive_->Next(k, applied_V, measured_mm, &step.model_mm);
+    step.wanted_V = predictive_->Next(k, limiter_, measured_mm, &step.model_mm);
   } else if (missed) {
     step.wanted_V = last_wanted_V_;  // the PI waits for a measurement
   } else {

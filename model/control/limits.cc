@@ -62,14 +62,29 @@ double CommandLimiter::Apply(double wanted_V, LimitsActed* acted) {
     u = std::copysign(std::max(allowed_V, 0.0), u);  // towards 0 V, inside the range
     flags.charge = true;
   }
-  window_[next_] = std::abs(u) * sample_period_s_;
+  const double charge = std::abs(u) * sample_period_s_;
+  charge_Vs_ += charge - window_[next_];
+  window_[next_] = charge;
   next_ = (next_ + 1) % window_.size();
-  // Summed afresh rather than updated, so that rounding cannot accumulate over a long run.
-  charge_Vs_ = 0.0;
-  for (double part : window_) charge_Vs_ += part;
+  // Summed afresh once per window, so that rounding cannot accumulate over a long run.
+  if (next_ == 0) {
+    charge_Vs_ = 0.0;
+    for (double part : window_) charge_Vs_ += part;
+  }
   last_V_ = u;
   if (acted) *acted = flags;
   return u;
+}
+
+}  // namespace flexid::model::control
+
+namespace flexid::model::control {
+
+std::vector<double> CommandLimiter::WindowCharges() const {
+  std::vector<double> oldest_first(window_.begin() + static_cast<long>(next_), window_.end());
+  oldest_first.insert(oldest_first.end(), window_.begin(),
+                      window_.begin() + static_cast<long>(next_));
+  return oldest_first;
 }
 
 }  // namespace flexid::model::control

@@ -60,6 +60,8 @@ class CommandLimiter {
   double last_V() const { return last_V_; }
   // The charge proxy over the window up to and including the last voltage, V s.
   double charge_Vs() const { return charge_Vs_; }
+  // The charge |u_j| Ts of each of the last W samples, oldest first, V s.
+  std::vector<double> WindowCharges() const;
   const ControlLimits& limits() const { return limits_; }
 
  private:

@@ -21,23 +21,32 @@
 // Without feedback (open-loop inversion), d = 0.
 //
 // Decision variables: the voltage on B blocks of the horizon, each held over its block
-// ("move blocking"): the first block lasts replan_s (the plan is made again at its end),
-// then R, 2R, 2R, 4R, 4R, ... samples (R = replan_s / Ts) up to H. U_b is block b's voltage.
+// ("move blocking"): blocks of R = replan_s / Ts samples (the plan is made again at the
+// end of the first) through the dead time and fine_horizon_s beyond it, where the
+// voltage decided now acts first, then 2R, 2R, 4R, 4R, ... samples up to H. U_b is block
+// b's voltage.
 //
 // Cost (mm^2), with m linearised around the previous plan U0 (Gauss-Newton, one step per
 // replan):
-//   J(U) = (1/H) sum_j (yhat_{k+j}(U) - r_{k+j})^2
+//   J(U) = (R/H) sum_{j = R, 2R, .. H} (yhat_{k+j}(U) - r_{k+j})^2   tracking, every R
 //        + w_term (y_ss(U_{B-1}) + d_k - r_{k+H})^2          steady state after the horizon
 //        + w_move sum_b (U_b - U_{b-1})^2,  U_{-1} = u_k          moves
-//        + w_effort sum_b (L_b / H) U_b^2                          voltage used
+//        + w_effort sum_b (L_b / H) (U_b - u_ss,b)^2              voltage beyond the need
+// where u_ss,b is the voltage whose steady state is r - d where block b acts (its middle,
+// a dead time on): the effort term pulls towards what holds the reference, not towards
+// 0 V, so it leaves no offset.
 //   yhat(U) ~ yhat(U0) + S (U - U0),  S_{jb} = g(j - a_b + 1) - g(j - a_{b+1} + 1),
 // where a_b is block b's first sample (from 1), g(n) the model's response n samples after
 // a unit step of the voltage (zero for n <= 0), taken by finite difference (probe_V) at
-// the voltage in force, and y_ss the model's steady state (reference.h), linearised at
-// U0_{B-1}. The voltage range and the rate limit bound each block (reachable from u_k at
-// rate_V_per_s by the block's start), and the plan's samples are rate-limited when
-// simulated; the charge limit acts on the command (limits.h). The bounded least-squares
-// problem is solved by box_qp.h.
+// the voltage in force u_k, and y_ss the model's steady state (reference.h), linearised at
+// U0_{B-1}. The base trajectory yhat(U0) is the T-S model's own; only the
+// correction is linear, and replanning every replan_s takes it further (scaling S by the
+// incremental gain at each block's voltage was tried and tracked worse on the rig). Each block is
+// bounded by the voltage range, by what the rate limit reaches from u_k by the block's start, and
+// by the charge limit: |U_b| L_b Ts at most what is left of max_charge_Vs in the window ending with
+// block b, after the applied voltages still in it and the earlier blocks of U0. A plan is simulated
+// as the limits (limits.h) will apply it, sample by sample. The bounded least-squares problem is
+// solved by box_qp.h.
 #pragma once
 
 #include <string>
@@ -56,7 +65,8 @@ struct MpcOptions {
   double effort_weight = 0.002;  // w_effort, mm^2 per V^2
   double terminal_weight = 1.0;  // w_term (dimensionless)
   double disturbance_time_constant_s = 2.0;  // tau_d, s (>= 0)
-  double probe_V = 0.05;                     // finite-difference step of g, V (> 0)
+  double fine_horizon_s = 10.0;  // blocks of replan_s this long past the dead time, s (>= 0)
+  double probe_V = 0.05;         // finite-difference step of g, V (> 0)
 
   bool IsValid(std::string* error) const;
 };
@@ -69,18 +79,23 @@ class PredictiveController {
                        const ControlLimits& limits, double sample_period_s,
                        const MpcOptions& options, bool feedback);
 
-  // Sample k (strictly increasing by 1): applied_V is u_k, measured_mm is y_k (NaN: no
-  // measurement, the mismatch is not updated). Returns the wanted u_{k+1}; *model_mm
-  // receives m_k.
-  double Next(long k, double applied_V, double measured_mm, double* model_mm);
+  // Sample k (strictly increasing by 1): `limiter` has applied u_k (its last_V) and holds
+  // the charge of the window before; measured_mm is y_k (NaN: no measurement, the mismatch
+  // is not updated). Returns the wanted u_{k+1}; *model_mm receives m_k.
+  double Next(long k, const CommandLimiter& limiter, double measured_mm, double* model_mm);
 
   double mismatch_mm() const { return mismatch_mm_; }  // d_k
   int replans() const { return replans_; }
 
  private:
-  void Replan(long k, double applied_V);
-  // The plan's voltages for samples k+1..k+H, rate-limited from u_k.
-  std::vector<double> Expand(const std::vector<double>& blocks, double applied_V) const;
+  void Replan(long k, const CommandLimiter& limiter);
+  // The plan's voltages for samples k+1..k+H as the limits will apply them.
+  std::vector<double> Expand(const std::vector<double>& blocks,
+                             const CommandLimiter& limiter) const;
+  // Each block's bounds: the range, what the rate limit reaches by the block's start, and
+  // the charge left in the window at its end once the earlier blocks of plan U0 are spent.
+  void Bounds(const CommandLimiter& limiter, const Eigen::VectorXd& U0, Eigen::VectorXd* lo,
+              Eigen::VectorXd* hi) const;
   std::vector<double> Simulate(const std::vector<double>& voltages_V) const;
 
   Reference reference_;
