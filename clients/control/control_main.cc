@@ -134,9 +134,10 @@ class ControlLoop {
         session_(session),
         command_channel_(channels.Command(args.actuator_id)),
         alert_channel_(channels.Alert()) {
-    lcm_.subscribe(bus::Exactly(channels.Deflection(args.actuator_id)), &ControlLoop::OnDeflection,
-                   this);
-    lcm_.subscribe(bus::Exactly(alert_channel_), &ControlLoop::OnAlert, this);
+    // subscribeFunction, as flexidd subscribes (tests/lcm_subscribe.h says why).
+    lcm_.subscribeFunction(bus::Exactly(channels.Deflection(args.actuator_id)),
+                           &ControlLoop::OnDeflectionThunk, this);
+    lcm_.subscribeFunction(bus::Exactly(alert_channel_), &ControlLoop::OnAlertThunk, this);
   }
 
   // Handles the bus until the session stops; returns the reason (nullopt: no measurement
@@ -203,6 +204,15 @@ class ControlLoop {
     message.sent_utime = bus::WallClockUtime();
     auth::Sign(key_, &message);
     if (lcm_.publish(command_channel_, &message) != 0) ++failed_;
+  }
+
+  static void OnDeflectionThunk(const lcm::ReceiveBuffer* buffer, const std::string& channel,
+                                ControlLoop* self) {
+    self->OnDeflection(buffer, channel);
+  }
+  static void OnAlertThunk(const lcm::ReceiveBuffer* buffer, const std::string& channel,
+                           ControlLoop* self) {
+    self->OnAlert(buffer, channel);
   }
 
   void OnDeflection(const lcm::ReceiveBuffer* buffer, const std::string&) {

@@ -332,6 +332,11 @@ flexid::auth::Key ReadSharedKey(const RigArgs& args, const std::string& use) {
 class CommandHandler {
  public:
   explicit CommandHandler(CommandInbox& inbox) : inbox_(inbox) {}
+  // For lcm.subscribeFunction (tests/lcm_subscribe.h says why not a member subscription).
+  static void OnCommandThunk(const lcm::ReceiveBuffer* buffer, const std::string& channel,
+                             CommandHandler* self) {
+    self->OnCommand(buffer, channel);
+  }
   void OnCommand(const lcm::ReceiveBuffer* buffer, const std::string&) {
     try {
       flexid::voltage_command_t command;
@@ -399,7 +404,8 @@ int RunClosedLoopCommand(const RigArgs& args) {
   CommandInbox inbox(key, id, args.command_timeout_s,
                      [](const std::string& line) { std::cerr << line << "\n"; });
   CommandHandler handler(inbox);
-  lcm.subscribe(bus::Exactly(channels.Command(id)), &CommandHandler::OnCommand, &handler);
+  lcm.subscribeFunction(bus::Exactly(channels.Command(id)), &CommandHandler::OnCommandThunk,
+                        &handler);
   LcmSink sink(lcm, channels, id, args.trial_control ? &key : nullptr);
 
   InstallStopSignals();
