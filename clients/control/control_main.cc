@@ -48,6 +48,7 @@
 #include "bus/channels.h"
 #include "bus/clock.h"
 #include "bus/ids.h"
+#include "bus/lcm_url.h"
 #include "bus/rpc_client.h"
 #include "clients/cli/command.h"
 #include "clients/control/reference_input.h"
@@ -282,6 +283,14 @@ int RunControl(ControlArgs args) {
   model::control::Reference reference =
       args.reference_path.empty() ? ReferenceFromProtocol(args.protocol, options.sample_period_s)
                                   : model::control::ReadReferenceCsv(args.reference_path);
+  // A deflection lost in the socket is a sample without a command: a larger receive buffer
+  // than the kernel's default, as flexidd asks for.
+  lcm::LCM lcm(bus::WithReceiveBuffer(args.lcm_url, 4 << 20));
+  if (!lcm.good()) throw OperationError("cannot open the LCM bus [url: " + args.lcm_url + "]");
+  const bus::Channels channels(args.channel_prefix);
+  std::string model_source;
+  const model::TsModel model = LoadControlModel(args, lcm, channels, &model_source);
+  model::control::Controller controller(model, std::move(reference), options);
   auth::Key key;
   try {
     key = auth::ReadKeyFile(auth::ClientKeyFilePath(args.key_file));
@@ -290,12 +299,6 @@ int RunControl(ControlArgs args) {
                          " (commands are signed with flexidd's key: --key-file PATH or "
                          "FLEXID_KEY_FILE)");
   }
-  lcm::LCM lcm(args.lcm_url);
-  if (!lcm.good()) throw OperationError("cannot open the LCM bus [url: " + args.lcm_url + "]");
-  const bus::Channels channels(args.channel_prefix);
-  std::string model_source;
-  const model::TsModel model = LoadControlModel(args, lcm, channels, &model_source);
-  model::control::Controller controller(model, std::move(reference), options);
   std::cerr << "flexid-control " << kVersion << ": " << args.actuator_id << " follows "
             << controller.reference().source() << " (" << controller.reference().duration_s()
             << " s) with the " << args.controller << " controller on " << model_source

@@ -154,8 +154,10 @@ RunSummary RunClosedLoop(ClosedLoopPlant& plant, int64_t samples, CommandInbox& 
     ++(sent ? *counter : summary.failed_messages);
   };
   const Clock::time_point wall_start = Clock::now();
+  // Half the timeout: a sample whose deflection the controller never got (a lost message)
+  // goes on with the voltage in force well before the controller's own stale timeout.
   const auto grace = std::chrono::duration_cast<Clock::duration>(
-      std::chrono::duration<double>(options.command_timeout_s));
+      std::chrono::duration<double>(0.5 * options.command_timeout_s));
   if (options.trial_control)
     count(sink.PublishTrialControl(plant.UtimeOf(0), TrialAction::kStart, options.protocol),
           &summary.trial_messages);

@@ -20,8 +20,10 @@
 //
 // Pacing (RunClosedLoop): sample k goes out at wall time start + t_k / speed, as in open
 // loop, but while a controller is attached (a command accepted within command_timeout_s)
-// the rig waits up to command_timeout_s past that time for the command for utime_k, so that
-// a controller slower than the playback still sees every sample answered in time.
+// the rig waits up to half of command_timeout_s past that time for the command for utime_k,
+// so that a controller slower than the playback still sees every sample answered in time,
+// and a sample the controller never heard of goes on before the controller's own stale
+// timeout (0.5 s by default) stops it.
 #pragma once
 
 #include <atomic>

@@ -80,6 +80,7 @@
 #include "bus/channels.h"
 #include "bus/clock.h"
 #include "bus/ids.h"
+#include "bus/lcm_url.h"
 #include "bus/rpc_client.h"
 #include "bus/sample_publisher.h"
 #include "clients/cli/command.h"
@@ -397,7 +398,7 @@ int RunClosedLoopCommand(const RigArgs& args) {
   ClosedLoopPlant plant(LoadModel(args.model_path), ClosedLoopEffects(args), options);
   const flexid::auth::Key key = ReadSharedKey(args, "--closed-loop checks the signed commands");
 
-  lcm::LCM lcm(args.lcm_url);
+  lcm::LCM lcm(bus::WithReceiveBuffer(args.lcm_url, 4 << 20));  // commands come every sample
   if (!lcm.good()) throw OperationError("cannot open the LCM bus [url: " + args.lcm_url + "]");
   const bus::Channels channels(args.channel_prefix);
   if (!args.start_utime_given) plant.SetStartUtime(StartUtimeOnTheBus(lcm, channels, args));
