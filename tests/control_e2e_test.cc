@@ -225,7 +225,11 @@ TEST(ControlLive, TheRigFollowsAStaircaseAndFlexiddRecordsTheTrial) {
   EXPECT_GE(list[0].value("samples", 0), 3790);
 }
 
-TEST(ControlSafety, AStaleMeasurementSendsZeroVoltsWithinTheTimeout) {
+// flexid-control driven by a FakeSource for 0.8 s, then stopped by stop(listener, control,
+// source): exit 1, a 0 V stop command and a control_stop alert naming `reason`; then
+// check(listener).
+template <typename Stop, typename Check>
+void ExpectStopsOn(const std::string& reason, Stop&& stop, Check&& check) {
   const testing::ScratchDir scratch;
   const std::string url = testing::RandomUrl(), key = scratch.File("key");
   auth::LoadOrCreateKeyFile(key);
@@ -233,47 +237,50 @@ TEST(ControlSafety, AStaleMeasurementSendsZeroVoltsWithinTheTimeout) {
   const auto control = StartControl(scratch, url, key, "hold:level=5,duration=600");
   std::this_thread::sleep_for(300ms);
   FakeSource source(listener.lcm());
-  std::this_thread::sleep_for(1500ms);
-  const auto last_sample = source.Stop();
+  std::this_thread::sleep_for(800ms);
+  stop(listener, *control, source);
   EXPECT_EQ(ExitCode(control->Wait(10s)), 1) << ReadFile(scratch.File("control.err"));
-  ExpectStopped(listener, "stale_measurement");
-  const auto commands = listener.commands();
-  ASSERT_GT(commands.size(), 10u);
-  EXPECT_NE(commands[commands.size() - 2].command.voltage_V, 0.0);  // it was driving
-  const double after_s = std::chrono::duration<double>(commands.back().at - last_sample).count();
-  EXPECT_LT(after_s, 0.5 + 0.5) << "the stop came " << after_s << " s after the last sample";
-  EXPECT_GT(after_s, 0.4);
+  ExpectStopped(listener, reason);
+  check(listener);
 }
 
-TEST(ControlSafety, ACriticalAlertAndSigtermStopTheRun) {
-  const testing::ScratchDir scratch;
-  const std::string url = testing::RandomUrl(), key = scratch.File("key");
-  auth::LoadOrCreateKeyFile(key);
-  {
-    BusListener listener(url);
-    const auto control = StartControl(scratch, url, key, "hold:level=5,duration=600");
-    std::this_thread::sleep_for(300ms);
-    FakeSource source(listener.lcm());
-    std::this_thread::sleep_for(800ms);
-    flexid::alert_t alert;
-    alert.actuator_id = "S1";
-    alert.kind = "storage_failing";
-    alert.severity = flexid::alert_t::kCritical;
-    alert.text = "a critical alert";
-    listener.lcm().publish(bus::Channels().Alert(), &alert);
-    EXPECT_EQ(ExitCode(control->Wait(10s)), 1) << ReadFile(scratch.File("control.err"));
-    ExpectStopped(listener, "critical_alert");
-  }
-  {
-    BusListener listener(url);
-    const auto control = StartControl(scratch, url, key, "hold:level=5,duration=600");
-    std::this_thread::sleep_for(300ms);
-    FakeSource source(listener.lcm());
-    std::this_thread::sleep_for(800ms);
-    ASSERT_TRUE(control->Signal(SIGTERM));
-    EXPECT_EQ(ExitCode(control->Wait(10s)), 1) << ReadFile(scratch.File("control.err"));
-    ExpectStopped(listener, "signal");
-  }
+TEST(ControlSafety, AStaleMeasurementSendsZeroVoltsWithinTheTimeout) {
+  std::chrono::steady_clock::time_point last_sample;
+  ExpectStopsOn(
+      "stale_measurement",
+      [&](BusListener&, ChildProcess&, FakeSource& source) { last_sample = source.Stop(); },
+      [&](BusListener& listener) {
+        const auto commands = listener.commands();
+        ASSERT_GT(commands.size(), 10u);
+        EXPECT_NE(commands[commands.size() - 2].command.voltage_V, 0.0);  // it was driving
+        const double after_s =
+            std::chrono::duration<double>(commands.back().at - last_sample).count();
+        EXPECT_LT(after_s, 0.5 + 0.5) << "the stop came " << after_s << " s after the last sample";
+        EXPECT_GT(after_s, 0.4);
+      });
+}
+
+TEST(ControlSafety, ACriticalAlertStopsTheRun) {
+  ExpectStopsOn(
+      "critical_alert",
+      [](BusListener& listener, ChildProcess&, FakeSource&) {
+        flexid::alert_t alert;
+        alert.actuator_id = "S1";
+        alert.kind = "storage_failing";
+        alert.severity = flexid::alert_t::kCritical;
+        alert.text = "a critical alert";
+        listener.lcm().publish(bus::Channels().Alert(), &alert);
+      },
+      [](BusListener&) {});
+}
+
+TEST(ControlSafety, SigtermStopsTheRun) {
+  ExpectStopsOn(
+      "signal",
+      [](BusListener&, ChildProcess& control, FakeSource&) {
+        EXPECT_TRUE(control.Signal(SIGTERM));
+      },
+      [](BusListener&) {});
 }
 
 // A command as flexid-control sends it, signed with `key` (nullptr: unsigned).

@@ -125,8 +125,9 @@ struct RigArgs {
   bool trial_control = false;
   std::string key_file;  // signs trial control (empty: $FLEXID_KEY_FILE, else var/flexidd.key)
   bool closed_loop = false;
-  double duration_s = 0.0;         // closed loop: message time to play
-  double command_timeout_s = 0.5;  // closed loop: the watchdog and the freshness window
+  double duration_s = 0.0;                 // closed loop: message time to play
+  double command_timeout_s = 0.5;          // closed loop: the watchdog and the freshness window
+  bool closed_loop_options_given = false;  // --duration or --command-timeout
 };
 
 // The runner's sink on the bus: bus::SamplePublisher builds, signs and publishes.
@@ -443,6 +444,8 @@ int RunClosedLoopCommand(const RigArgs& args) {
 // Returns the exit code (0 or 1); throws UsageError / model::InputError for bad input.
 int RunRigCommand(const RigArgs& args) {
   if (args.closed_loop) return RunClosedLoopCommand(args);
+  if (args.closed_loop_options_given)
+    throw UsageError("--duration and --command-timeout belong to --closed-loop");
   if (args.protocol.empty()) throw UsageError("--protocol SPEC is required (or --closed-loop)");
   if (!args.out_path.empty()) return WriteRecording(args);
   if (args.lcm_url.empty())
@@ -565,7 +568,8 @@ int main(int argc, char** argv) {
       "--closed-loop", args.closed_loop,
       "One actuator driven by a controller's signed voltage commands on PREFIX/<ID>/COMMAND "
       "(flexid-control) for --duration seconds, instead of --protocol");
-  app.add_option("--duration", args.duration_s, "--closed-loop: message time to play, s");
+  CLI::Option* duration =
+      app.add_option("--duration", args.duration_s, "--closed-loop: message time to play, s");
   CLI::Option* command_timeout =
       app.add_option("--command-timeout", args.command_timeout_s,
                      "--closed-loop: with no accepted command for this long (wall clock, s) the "
@@ -585,6 +589,7 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
     args.start_utime_given = start_utime->count() > 0;
+    args.closed_loop_options_given = duration->count() > 0 || command_timeout->count() > 0;
     for (const CLI::Option* option : {lcm, channel_prefix, speed, start_utime, trial_control,
                                       key_file, closed_loop, command_timeout})
       if (option->count() > 0) args.bus_options_given.push_back(option->get_name());
