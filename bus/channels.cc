@@ -53,6 +53,9 @@ std::string Channels::Deflection(std::string_view actuator_id) const {
 std::string Channels::Prediction(std::string_view actuator_id) const {
   return Named(actuator_id, "PREDICTION");
 }
+std::string Channels::Command(std::string_view actuator_id) const {
+  return Named(actuator_id, "COMMAND");
+}
 std::string Channels::Alert() const { return Named("", "ALERT"); }
 std::string Channels::Status() const { return Named("", "STATUS"); }
 std::string Channels::Ownership() const { return Named("", "OWNERSHIP"); }

@@ -4,6 +4,7 @@
 //   PREFIX/<actuator>/VOLTAGE     voltage_sample_t      source -> flexidd
 //   PREFIX/<actuator>/DEFLECTION  deflection_sample_t   source -> flexidd
 //   PREFIX/<actuator>/PREDICTION  prediction_t          flexidd -> clients
+//   PREFIX/<actuator>/COMMAND     voltage_command_t     flexid-control -> rig, DAQ (signed)
 //   PREFIX/ALERT                  alert_t               flexidd -> clients
 //   PREFIX/STATUS                 status_t              flexidd -> clients, once a second
 //   PREFIX/OWNERSHIP              ownership_t           flexidd -> flexidd, clients: its
@@ -49,6 +50,7 @@ class Channels {
   std::string Voltage(std::string_view actuator_id) const;
   std::string Deflection(std::string_view actuator_id) const;
   std::string Prediction(std::string_view actuator_id) const;
+  std::string Command(std::string_view actuator_id) const;
   std::string Alert() const;
   std::string Status() const;
   std::string Ownership() const;

@@ -9,6 +9,7 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <charconv>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -17,6 +18,7 @@
 #include <filesystem>
 #include <flexid/rpc_request_t.hpp>
 #include <flexid/trial_control2_t.hpp>
+#include <flexid/voltage_command_t.hpp>
 
 namespace flexid::auth {
 namespace {
@@ -99,6 +101,11 @@ void AppendField(std::string* out, std::string_view bytes) {
   *out += '\n';
 }
 void AppendField(std::string* out, int64_t value) { AppendField(out, std::to_string(value)); }
+void AppendField(std::string* out, double value) {
+  char buffer[32];
+  const auto result = std::to_chars(buffer, buffer + sizeof buffer, value);
+  AppendField(out, std::string_view(buffer, static_cast<size_t>(result.ptr - buffer)));
+}
 
 }  // namespace
 
@@ -198,6 +205,19 @@ std::string CanonicalForm(const flexid::trial_control2_t& control) {
   return out;
 }
 
+std::string CanonicalForm(const flexid::voltage_command_t& command) {
+  std::string out = "flexid.voltage_command_t/1\n";
+  AppendField(&out, command.utime);
+  AppendField(&out, command.actuator_id);
+  AppendField(&out, command.voltage_V);
+  AppendField(&out, command.sequence);
+  AppendField(&out, command.controller_id);
+  AppendField(&out, static_cast<int64_t>(command.mode));
+  AppendField(&out, command.sent_utime);
+  AppendField(&out, command.nonce);
+  return out;
+}
+
 std::string Signature(const Key& key, std::string_view canonical) {
   uint8_t mac[EVP_MAX_MD_SIZE];
   unsigned int size = 0;
@@ -224,6 +244,11 @@ void Sign(const Key& key, flexid::trial_control2_t* control) {
   control->auth = Signature(key, CanonicalForm(*control));
 }
 
+void Sign(const Key& key, flexid::voltage_command_t* command) {
+  if (command->nonce.empty()) command->nonce = RandomNonce();
+  command->auth = Signature(key, CanonicalForm(*command));
+}
+
 NonceCache::Result NonceCache::Insert(const std::string& scope, const std::string& nonce,
                                       int64_t expires_utime, int64_t now_utime) {
   while (!by_time_.empty() && by_time_.begin()->first < now_utime) {
@@ -248,18 +273,27 @@ std::string Verifier::Check(const flexid::trial_control2_t& control, int64_t now
                now_utime);
 }
 
+std::string Verifier::Check(const flexid::voltage_command_t& command, int64_t now_utime) {
+  return Check(CanonicalForm(command), command.auth, command.sent_utime,
+               "command/" + command.controller_id, command.nonce, now_utime, "command time",
+               "this host's clock");
+}
+
 std::string Verifier::Check(std::string_view canonical, const std::string& auth, int64_t sent_utime,
-                            const std::string& scope, const std::string& nonce, int64_t now_utime) {
+                            const std::string& scope, const std::string& nonce, int64_t now_utime,
+                            const char* what, const char* whose) {
   if (auth.empty()) return "no signature";
   if (!IsValidNonce(nonce)) return "bad nonce (expected [A-Za-z0-9_-]{8,64})";
   if (!SignatureMatches(key_, canonical, auth)) return "bad signature";
   // In doubles: a signed but absurd time must not overflow a subtraction.
   const double off_s = 1e-6 * (static_cast<double>(sent_utime) - static_cast<double>(now_utime));
   if (std::abs(off_s) * 1e6 > static_cast<double>(options_.window_us)) {
-    char text[160];
-    std::snprintf(text, sizeof text, "request time %.0f s %s the daemon's clock (window %.0f s)",
-                  std::abs(off_s), off_s < 0 ? "behind" : "ahead of",
-                  1e-6 * static_cast<double>(options_.window_us));
+    char text[200];
+    const double window_s = 1e-6 * static_cast<double>(options_.window_us);
+    // Whole seconds for the daemon's 30 s window; tenths under 10 s (a rig's commands).
+    const int digits = window_s < 10.0 ? 1 : 0;
+    std::snprintf(text, sizeof text, "%s %.*f s %s %s (window %.*f s)", what, digits,
+                  std::abs(off_s), off_s < 0 ? "behind" : "ahead of", whose, digits, window_s);
     return text;
   }
   switch (nonces_.Insert(scope, nonce, sent_utime + options_.window_us, now_utime)) {

@@ -2,7 +2,10 @@
 // reliability"; README "Security"): RPC requests whose method ChangesData() and trial control
 // (trial_control2_t on FLEXID/TRIAL) carry an HMAC-SHA256 under a shared key, a sender's
 // wall-clock time and a nonce. flexidd refuses a message whose signature is missing or
-// wrong, whose time is outside its window, or whose nonce it has already seen.
+// wrong, whose time is outside its window, or whose nonce it has already seen. Voltage
+// commands (voltage_command_t on PREFIX/<actuator>/COMMAND) drive hardware and are signed
+// the same way; the actuator (flexid-rig --closed-loop) checks them with a Verifier whose
+// window is its command timeout.
 //
 // Shared by flexidd (Verifier), the command line, the virtual rig and the benchmarks (Sign):
 // one small module of the bus contract, as lcmtypes/wire_check.h.
@@ -17,6 +20,9 @@
 //                                                   args_json nonce
 //   trial_control2_t: "flexid.trial_control2_t/1\n" utime actuator_id action protocol
 //                                                   sent_utime nonce
+//   voltage_command_t: "flexid.voltage_command_t/1\n" utime actuator_id voltage_V sequence
+//                                                   controller_id mode sent_utime nonce
+// (voltage_V in the shortest decimal form that reads back to the same double, to_chars).
 // `auth` is the lowercase hex HMAC-SHA256(key, canonical form): 64 characters.
 //
 // The key: 32 random bytes, written as one line of 64 hex digits in a file that only the
@@ -36,6 +42,7 @@
 namespace flexid {
 class rpc_request_t;
 class trial_control2_t;
+class voltage_command_t;
 }  // namespace flexid
 
 namespace flexid::auth {
@@ -78,6 +85,7 @@ std::string RandomNonce();
 
 std::string CanonicalForm(const flexid::rpc_request_t& request);
 std::string CanonicalForm(const flexid::trial_control2_t& control);
+std::string CanonicalForm(const flexid::voltage_command_t& command);
 
 // Lowercase hex HMAC-SHA256(key, canonical).
 std::string Signature(const Key& key, std::string_view canonical);
@@ -89,6 +97,7 @@ bool SignatureMatches(const Key& key, std::string_view canonical, std::string_vi
 // stays message time).
 void Sign(const Key& key, flexid::rpc_request_t* request);
 void Sign(const Key& key, flexid::trial_control2_t* control);
+void Sign(const Key& key, flexid::voltage_command_t* command);
 
 // The nonces seen within the replay window, by (scope, nonce), each remembered until the
 // time after which a message carrying it is refused as stale anyway. Bounded: at most
@@ -127,15 +136,18 @@ class Verifier {
   // Empty when the message is authentic, within the window and not seen before (its nonce
   // is then remembered); otherwise why not, one line: "no signature", "bad nonce", "bad
   // signature", "request time 45 s from the daemon's clock (window 30 s)", "replayed
-  // nonce", "too many signed requests within the window (100000)".
+  // nonce", "too many signed requests within the window (100000)". A command's time is
+  // judged against "this host's clock", in tenths of a second under a 10 s window.
   std::string Check(const flexid::rpc_request_t& request, int64_t now_utime);
   std::string Check(const flexid::trial_control2_t& control, int64_t now_utime);
+  std::string Check(const flexid::voltage_command_t& command, int64_t now_utime);
 
   size_t nonces_remembered() const { return nonces_.size(); }
 
  private:
   std::string Check(std::string_view canonical, const std::string& auth, int64_t sent_utime,
-                    const std::string& scope, const std::string& nonce, int64_t now_utime);
+                    const std::string& scope, const std::string& nonce, int64_t now_utime,
+                    const char* what = "request time", const char* whose = "the daemon's clock");
   Key key_;
   VerifierOptions options_;
   NonceCache nonces_;

@@ -435,6 +435,30 @@ class Dynamics {
   double dc_gain_ = 0.0;
 };
 
+// RK4 over [t_s, end_s], a span within which the delayed voltage's waveform piece does not
+// change, in equal steps of at most run.max_step_s.
+inline void IntegrateSpan(const Dynamics& dynamics, const LabRun& run, double t_s, double end_s,
+                          State* s) {
+  const double span = end_s - t_s;
+  const int steps = static_cast<int>(std::ceil(span / run.max_step_s - 1e-9));
+  const double h = span / steps;
+  const size_t piece = run.waveform.PieceAt(t_s + 0.5 * span - run.plant.delay_s);
+  const int states = dynamics.order() + 3;
+  State k1{}, k2{}, k3{}, k4{}, stage{};
+  for (int i = 0; i < steps; ++i) {
+    const double t0 = t_s + i * h;
+    dynamics.Rates(t0, piece, *s, &k1);
+    for (int j = 0; j < states; ++j) stage[j] = (*s)[j] + 0.5 * h * k1[j];
+    dynamics.Rates(t0 + 0.5 * h, piece, stage, &k2);
+    for (int j = 0; j < states; ++j) stage[j] = (*s)[j] + 0.5 * h * k2[j];
+    dynamics.Rates(t0 + 0.5 * h, piece, stage, &k3);
+    for (int j = 0; j < states; ++j) stage[j] = (*s)[j] + h * k3[j];
+    dynamics.Rates(t0 + h, piece, stage, &k4);
+    for (int j = 0; j < states; ++j)
+      (*s)[j] += h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j]);
+  }
+}
+
 }  // namespace lab_detail
 
 // Noise-free deflection (mm) at the sample instants k Ts, k = 0 .. SampleCount - 1, from
@@ -456,28 +480,12 @@ inline std::vector<double> SimulateClean(const LabRun& run) {
 
   std::vector<double> y;
   y.reserve(count);
-  lab_detail::State s{}, k1{}, k2{}, k3{}, k4{}, stage{};
-  const int states = dynamics.order() + 3;
+  lab_detail::State s{};
   double t = 0.0;
   size_t next_sample = 0;
   for (double target : breaks) {
-    const double span = target - t;
-    if (span > 1e-12) {
-      const int steps = static_cast<int>(std::ceil(span / run.max_step_s - 1e-9));
-      const double h = span / steps;
-      const size_t piece = run.waveform.PieceAt(t + 0.5 * span - delay_s);
-      for (int i = 0; i < steps; ++i) {
-        const double t0 = t + i * h;
-        dynamics.Rates(t0, piece, s, &k1);
-        for (int j = 0; j < states; ++j) stage[j] = s[j] + 0.5 * h * k1[j];
-        dynamics.Rates(t0 + 0.5 * h, piece, stage, &k2);
-        for (int j = 0; j < states; ++j) stage[j] = s[j] + 0.5 * h * k2[j];
-        dynamics.Rates(t0 + 0.5 * h, piece, stage, &k3);
-        for (int j = 0; j < states; ++j) stage[j] = s[j] + h * k3[j];
-        dynamics.Rates(t0 + h, piece, stage, &k4);
-        for (int j = 0; j < states; ++j)
-          s[j] += h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j]);
-      }
+    if (target - t > 1e-12) {
+      lab_detail::IntegrateSpan(dynamics, run, t, target, &s);
       t = target;
     }
     // Record each sample instant once (a delayed step may coincide with one).

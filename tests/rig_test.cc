@@ -116,7 +116,7 @@ TEST(Protocol, EveryErrorIsOneClearLine) {
       {":level=2", "protocol \":level=2\": empty specification (expected NAME[:KEY=VALUE,...])"},
       {"ramp:level=2",
        "protocol \"ramp:level=2\": unknown protocol \"ramp\" (expected step, square, staircase, "
-       "hold, sweep or random)"},
+       "hold, sweep, sine or random)"},
       {"step", "protocol \"step\": missing key \"level\""},
       {"step:level=2", "protocol \"step:level=2\": missing key \"duration\""},
       {"step:level=2,duration=5,speed=3",
@@ -800,6 +800,22 @@ TEST(Protocol, SweepDefaultsToTheSeedsFrequencies) {
   EXPECT_EQ(q.duty, 0.25);
   EXPECT_EQ(q.level_V, -3.0);
   EXPECT_EQ(ProtocolDuration(q), 4 * 2.0 + 4 * 0.5);
+}
+
+// A sine: level + amplitude sin(2 pi F t); a period must hold 4 samples.
+TEST(Protocol, SineAroundItsLevel) {
+  const Protocol p = ParseProtocol("sine:level=3,amplitude=2,frequency=0.05,duration=60");
+  EXPECT_EQ(p.shape, Protocol::Shape::kSine);
+  EXPECT_EQ(ProtocolDuration(p), 60.0);
+  EXPECT_NEAR(VoltageAt(p, 0.0), 3.0, 1e-12);
+  EXPECT_NEAR(VoltageAt(p, 5.0), 5.0, 1e-12);   // a quarter period
+  EXPECT_NEAR(VoltageAt(p, 15.0), 1.0, 1e-12);  // three quarters
+  EXPECT_EQ(SamplingProblem(p, 10.0), "");
+  const Protocol fast = ParseProtocol("sine:amplitude=1,frequency=4,duration=10");
+  EXPECT_EQ(fast.level_V, 0.0);
+  EXPECT_NE(SamplingProblem(fast, 10.0).find("under 4 sample periods"), std::string::npos);
+  EXPECT_THROW(ParseProtocol("sine:amplitude=1,frequency=0,duration=10"), model::InputError);
+  EXPECT_THROW(ParseProtocol("sine:amplitude=1,duration=10"), model::InputError);
 }
 
 // 0.1 Hz then 0.5 Hz, 2 cycles each, duty 0.25: on 2.5 s of every 10 s for 20 s, then on

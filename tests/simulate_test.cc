@@ -15,17 +15,8 @@ using testing::ExpectVectorsNear;
 using testing::IntegrateRk4;
 using testing::MaxAbsDifference;
 
-// Piecewise-constant voltage: a new random level every `hold` samples.
 std::vector<double> RandomStaircase(size_t count, size_t hold, unsigned seed) {
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> level(-8.0, 8.0);
-  std::vector<double> u(count);
-  double value = 0.0;
-  for (size_t k = 0; k < count; ++k) {
-    if (k % hold == 0) value = level(rng);
-    u[k] = value;
-  }
-  return u;
+  return testing::RandomStaircase(count, hold, seed, -8.0, 8.0);
 }
 
 // Zero-order-hold input function over a grid, for the RK4 reference.

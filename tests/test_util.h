@@ -7,11 +7,26 @@
 
 #include <Eigen/Dense>
 #include <cmath>
+#include <random>
 #include <vector>
 
 #include "model/core/transfer_function.h"
 
 namespace flexid::testing {
+
+// Piecewise-constant voltage: a new level uniform in [low_V, high_V] every `hold` samples.
+inline std::vector<double> RandomStaircase(size_t count, size_t hold, unsigned seed, double low_V,
+                                           double high_V) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> level(low_V, high_V);
+  std::vector<double> u(count);
+  double value = 0.0;
+  for (size_t k = 0; k < count; ++k) {
+    if (k % hold == 0) value = level(rng);
+    u[k] = value;
+  }
+  return u;
+}
 
 // Controllable canonical form of num/den (den monic after division): x' = A x + B u,
 // y = C x + D u. Written out here so that tests do not depend on model/state_space.

@@ -13,6 +13,7 @@
 #include <flexid/status_t.hpp>
 #include <flexid/trial_control2_t.hpp>
 #include <flexid/trial_control_t.hpp>
+#include <flexid/voltage_command_t.hpp>
 #include <flexid/voltage_sample_t.hpp>
 #include <random>
 #include <vector>
@@ -70,6 +71,12 @@ TEST(WireCheck, LayoutsMatchTheGeneratedEncoders) {
   signed_control.nonce = "0123456789abcdef";
   signed_control.auth = std::string(64, 'a');
   ExpectLayoutMatches(signed_control, kTrialControl2);
+  flexid::voltage_command_t command;
+  command.actuator_id = "S1";
+  command.controller_id = "control-1";
+  command.nonce = "0123456789abcdef";
+  command.auth = std::string(64, 'b');
+  ExpectLayoutMatches(command, kVoltageCommand);
   flexid::rpc_request_t request;
   request.request_id = "r1";
   request.method = "status";

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <iterator>
+#include <numbers>
 #include <optional>
 #include <random>
 #include <sstream>
@@ -112,6 +113,12 @@ Protocol ParseProtocol(std::string_view text) {
         spec.Fail("frequencies must all be > 0 Hz (got " + Format(frequency_Hz) + ")");
     protocol.cycles = reader.Count("cycles").value_or(kDefaultSweepCycles);
     protocol.duty = reader.InRange("duty", 0.0, 1.0, /*include_ends=*/false).value_or(0.5);
+  } else if (spec.name == "sine") {
+    protocol.shape = Protocol::Shape::kSine;
+    protocol.level_V = reader.Number("level").value_or(0.0);
+    protocol.amplitude_V = reader.Required("amplitude", reader.Number("amplitude"));
+    protocol.frequency_Hz = reader.Required("frequency", reader.Positive("frequency", "Hz"));
+    protocol.duration_s = reader.Required("duration", reader.Positive("duration", "s"));
   } else if (spec.name == "random") {
     protocol.shape = Protocol::Shape::kRandom;
     protocol.levels_V = reader.Required("levels", reader.NumberList("levels"));
@@ -124,7 +131,7 @@ Protocol ParseProtocol(std::string_view text) {
                 Format(protocol.dwell_min_s) + ")");
   } else {
     spec.Fail("unknown protocol \"" + spec.name +
-              "\" (expected step, square, staircase, hold, sweep or random)");
+              "\" (expected step, square, staircase, hold, sweep, sine or random)");
   }
   reader.RejectUnknownKeys();
   if (!std::isfinite(ProtocolDuration(protocol))) spec.Fail("the protocol is too long");
@@ -147,6 +154,7 @@ double ProtocolDuration(const Protocol& protocol) {
     case Protocol::Shape::kStaircase:
       return static_cast<double>(protocol.levels_V.size() + 1) * protocol.dwell_s;
     case Protocol::Shape::kHold:
+    case Protocol::Shape::kSine:
     case Protocol::Shape::kRandom:
       return protocol.duration_s;
     case Protocol::Shape::kSweep: {
@@ -175,6 +183,13 @@ std::string SamplingProblem(const Protocol& protocol, double rate_Hz) {
               << 2.0 * frequency_Hz / shorter_share << " or leave " << frequency_Hz << " Hz out";
       return problem.str();
     }
+  }
+  if (protocol.shape == Protocol::Shape::kSine &&
+      1.0 / protocol.frequency_Hz < 2.0 * two_samples_s * (1.0 - 1e-9)) {
+    problem << "at " << protocol.frequency_Hz << " Hz a period (" << 1.0 / protocol.frequency_Hz
+            << " s) is under 4 sample periods (" << 2.0 * two_samples_s << " s at " << rate_Hz
+            << " Hz); raise --rate-hz to at least " << 4.0 * protocol.frequency_Hz;
+    return problem.str();
   }
   if (protocol.shape == Protocol::Shape::kRandom &&
       protocol.dwell_min_s < two_samples_s * (1.0 - 1e-9)) {
@@ -205,6 +220,9 @@ double VoltageAt(const Protocol& protocol, double t_s) {
     }
     case Protocol::Shape::kHold:
       return protocol.level_V;
+    case Protocol::Shape::kSine:  // t_s itself: a sine has no boundaries to round to
+      return protocol.level_V +
+             protocol.amplitude_V * std::sin(2.0 * std::numbers::pi * protocol.frequency_Hz * t_s);
     case Protocol::Shape::kSweep: {
       // The segment t falls in (after the end: the last one, which ends at 0 V).
       double start_s = 0.0;

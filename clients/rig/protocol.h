@@ -19,6 +19,10 @@
 //                                          starting with level for duty / F s (duty in
 //                                          (0, 1), default 0.5), then 0 V; default
 //                                          frequencies the seed's (kSeedSweepFrequencies_Hz)
+//   sine:[level=V,]amplitude=A,frequency=F,duration=S
+//                                          level + amplitude sin(2 pi F t) for duration s
+//                                          (level default 0); a period must last at least
+//                                          4 sample periods
 //   random:levels=V1/V2/...,dwell_min=S,dwell_max=S,duration=S[,seed=N]
 //                                          multilevel random: a level drawn uniformly from
 //                                          the list, held for a dwell drawn uniformly in
@@ -57,7 +61,7 @@
 namespace flexid::rig {
 
 struct Protocol {
-  enum class Shape { kStep, kSquare, kStaircase, kHold, kSweep, kRandom };
+  enum class Shape { kStep, kSquare, kStaircase, kHold, kSweep, kSine, kRandom };
   struct Dwell {
     double start_s = 0.0;  // from the start of the protocol
     double level_V = 0.0;  // held until the next dwell's start (the last: until the end)
@@ -65,8 +69,10 @@ struct Protocol {
   Shape shape = Shape::kHold;
   std::string text;  // the specification as given (published with trial_control_t)
 
-  double level_V = 0.0;                // step, square, hold, sweep
-  double duration_s = 0.0;             // step (after the delay), hold, random
+  double level_V = 0.0;                // step, square, hold, sweep; sine: its offset
+  double amplitude_V = 0.0;            // sine
+  double frequency_Hz = 0.0;           // sine
+  double duration_s = 0.0;             // step (after the delay), hold, sine, random
   double delay_s = 0.0;                // step
   double period_s = 0.0;               // square
   double duty = 0.5;                   // square, sweep: fraction of each period at level_V
@@ -102,7 +108,7 @@ std::vector<Protocol::Dwell> RandomSchedule(const Protocol& protocol);
 Protocol ParseProtocol(std::string_view spec);
 
 // Total length in s: delay + duration (step), cycles * period (square),
-// (levels + 1) * dwell (staircase), duration (hold, random), the sum over the frequencies
+// (levels + 1) * dwell (staircase), duration (hold, sine, random), the sum over the frequencies
 // of cycles / F (sweep).
 double ProtocolDuration(const Protocol& protocol);
 

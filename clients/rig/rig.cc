@@ -46,7 +46,7 @@ Rig::Rig(const model::TsModel& model, Protocol protocol,
     : protocol_(std::move(protocol)),
       effects_(std::move(effects)),
       options_(options),
-      generator_(options.seed) {
+      noise_(options.seed) {
   std::string why;
   if (!options_.IsValid(&why)) throw model::InputError(why);
   why = SamplingProblem(protocol_, options_.rate_Hz);
@@ -112,24 +112,24 @@ bool Rig::Next(RigSample* sample) {
   double deflection_mm = model_mm_[i];
   for (const auto& effect : effects_)
     deflection_mm = effect->Deflection(sample->t_s, sample->voltage_V, deflection_mm);
-  if (options_.noise_mm > 0.0) deflection_mm += options_.noise_mm * StandardNormal();
+  if (options_.noise_mm > 0.0) deflection_mm += options_.noise_mm * noise_.StandardNormal();
   sample->deflection_mm = deflection_mm;
   return true;
 }
 
 // Box-Muller: two independent N(0, 1) values from two uniforms on (0, 1].
-double Rig::StandardNormal() {
-  if (has_spare_normal_) {
-    has_spare_normal_ = false;
-    return spare_normal_;
+double GaussianNoise::StandardNormal() {
+  if (has_spare_) {
+    has_spare_ = false;
+    return spare_;
   }
   constexpr double kTwoToMinus53 = 1.0 / 9007199254740992.0;
   const double u1 = static_cast<double>((generator_() >> 11) + 1) * kTwoToMinus53;  // (0, 1]
   const double u2 = static_cast<double>(generator_() >> 11) * kTwoToMinus53;        // [0, 1)
   const double radius = std::sqrt(-2.0 * std::log(u1));
   const double angle = 2.0 * std::numbers::pi * u2;
-  spare_normal_ = radius * std::sin(angle);
-  has_spare_normal_ = true;
+  spare_ = radius * std::sin(angle);
+  has_spare_ = true;
   return radius * std::cos(angle);
 }
 

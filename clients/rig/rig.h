@@ -60,6 +60,19 @@ struct RigSample {
   bool publish_voltage = false;  // voltage_changed, or voltage_repeat_s since the last time
 };
 
+// White Gaussian noise of the rig's sensor: std::mt19937_64 and the Box-Muller transform
+// written out here, so that a seed gives the same values with any standard library.
+class GaussianNoise {
+ public:
+  explicit GaussianNoise(uint64_t seed) : generator_(seed) {}
+  double StandardNormal();
+
+ private:
+  std::mt19937_64 generator_;
+  bool has_spare_ = false;
+  double spare_ = 0.0;
+};
+
 class Rig {
  public:
   // Throws model::InputError for invalid options, a rate too low for the protocol
@@ -86,8 +99,6 @@ class Rig {
   bool Next(RigSample* sample);
 
  private:
-  double StandardNormal();
-
   Protocol protocol_;
   std::vector<std::unique_ptr<Effect>> effects_;
   RigOptions options_;
@@ -95,9 +106,7 @@ class Rig {
   std::vector<double> model_mm_;   // the model's output, per sample
   int64_t next_ = 0;
   int64_t last_voltage_utime_ = 0;
-  std::mt19937_64 generator_;
-  bool has_spare_normal_ = false;
-  double spare_normal_ = 0.0;
+  GaussianNoise noise_;
 };
 
 // An --effect of flexid-rig: "NAME[:k=v,...]" for every actuator, or "ID/NAME[:k=v,...]"

@@ -4,6 +4,10 @@
 //              [--speed X] [--rate-hz 10]
 //              [--model MODEL.json] [--effect [ID/]NAME[:k=v,...]]... [--noise-mm SIGMA]
 //              [--seed N] [--start-utime U] [--trial-control [--key-file PATH]]
+//   flexid-rig --lcm URL [--channel-prefix FLEXID] --actuator ID --closed-loop --duration S
+//              [--command-timeout 0.5] [--speed X] [--rate-hz 10] [--model MODEL.json]
+//              [--effect NAME[:k=v,...]]... [--noise-mm SIGMA] [--seed N] [--start-utime U]
+//              [--trial-control] [--key-file PATH]
 //   flexid-rig --out FILE.csv [--actuator ID[,ID...]]... --protocol SPEC [--rate-hz 10]
 //              [--model MODEL.json] [--effect [ID/]NAME[:k=v,...]]... [--noise-mm SIGMA]
 //              [--seed N]
@@ -24,6 +28,14 @@
 // its message time instead of going back, which flexidd would take for a clock jump
 // (runner.h, ContinuedStartUtime). When no flexidd answers, the wall clock; a line on
 // stderr says so, and another when the start moved after flexidd's latest sample.
+//
+// Closed loop (--closed-loop, closed_loop.h): one actuator's voltage is what a controller
+// (flexid-control) commands on PREFIX/<ID>/COMMAND, for --duration seconds of message time,
+// instead of a protocol. Commands must be signed with the shared key (--key-file, as for
+// trial control) and fresh: unsigned, badly signed, replayed or stale ones are refused,
+// counted and logged (at most once a second per reason); with no accepted command for
+// --command-timeout seconds of wall time (default 0.5) the voltage goes to 0 V. The summary
+// line then adds the commands accepted and refused.
 //
 // Several actuators: --actuator may be repeated or hold a comma-separated list. Every
 // actuator plays the same protocol on its own channels, with its own noise stream (seed +
@@ -54,27 +66,32 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <flexid/voltage_command_t.hpp>
 #include <fstream>
 #include <iostream>
 #include <lcm/lcm-cpp.hpp>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <optional>
+#include <sstream>
 #include <string>
 #include <vector>
 
 #include "bus/channels.h"
 #include "bus/clock.h"
 #include "bus/ids.h"
+#include "bus/lcm_url.h"
 #include "bus/rpc_client.h"
 #include "bus/sample_publisher.h"
 #include "clients/cli/command.h"
+#include "clients/rig/closed_loop.h"
 #include "clients/rig/effects.h"
 #include "clients/rig/protocol.h"
 #include "clients/rig/rig.h"
 #include "clients/rig/runner.h"
 #include "flexid/version.h"
 #include "lcmtypes/message_auth.h"
+#include "lcmtypes/wire_check.h"
 #include "model/core/errors.h"
 #include "model/core/model_file.h"
 #include "model/core/presets.h"
@@ -107,6 +124,10 @@ struct RigArgs {
   bool start_utime_given = false;  // otherwise: wall clock now
   bool trial_control = false;
   std::string key_file;  // signs trial control (empty: $FLEXID_KEY_FILE, else var/flexidd.key)
+  bool closed_loop = false;
+  double duration_s = 0.0;                 // closed loop: message time to play
+  double command_timeout_s = 0.5;          // closed loop: the watchdog and the freshness window
+  bool closed_loop_options_given = false;  // --duration or --command-timeout
 };
 
 // The runner's sink on the bus: bus::SamplePublisher builds, signs and publishes.
@@ -276,8 +297,156 @@ int64_t StartUtimeOnTheBus(lcm::LCM& lcm, const bus::Channels& channels, const R
   return start_utime;
 }
 
+// The options of a run on the bus. Without --start-utime, the wall clock until flexidd is
+// asked (StartUtimeOnTheBus). Throws UsageError.
+RigOptions BusRigOptions(const RigArgs& args) {
+  RigOptions options;
+  options.rate_Hz = args.rate_Hz;
+  options.start_utime = args.start_utime_given ? args.start_utime : bus::WallClockUtime();
+  options.noise_mm = args.noise_mm;
+  options.seed = args.seed;
+  std::string why;
+  if (!options.IsValid(&why)) throw UsageError(why);
+  return options;
+}
+
+// SIGINT and SIGTERM stop the run between samples.
+void InstallStopSignals() {
+  struct sigaction action = {};
+  action.sa_handler = OnStopSignal;
+  sigemptyset(&action.sa_mask);
+  sigaction(SIGINT, &action, nullptr);
+  sigaction(SIGTERM, &action, nullptr);
+}
+
+// flexidd's key (--key-file, else $FLEXID_KEY_FILE, else var/flexidd.key); `use` says
+// what it is for, in the error. Throws OperationError.
+flexid::auth::Key ReadSharedKey(const RigArgs& args, const std::string& use) {
+  try {
+    return flexid::auth::ReadKeyFile(flexid::auth::ClientKeyFilePath(args.key_file));
+  } catch (const flexid::auth::KeyError& e) {
+    throw OperationError(std::string(e.what()) + " (" + use +
+                         " with flexidd's key: --key-file PATH or FLEXID_KEY_FILE)");
+  }
+}
+
+// Hands each message on the command channel to the inbox; nothing throws into LCM.
+class CommandHandler {
+ public:
+  explicit CommandHandler(CommandInbox& inbox) : inbox_(inbox) {}
+  // For lcm.subscribeFunction (tests/lcm_subscribe.h says why not a member subscription).
+  static void OnCommandThunk(const lcm::ReceiveBuffer* buffer, const std::string& channel,
+                             CommandHandler* self) {
+    self->OnCommand(buffer, channel);
+  }
+  void OnCommand(const lcm::ReceiveBuffer* buffer, const std::string&) {
+    try {
+      flexid::voltage_command_t command;
+      if (!wire::WellFormed(buffer->data, buffer->data_size, wire::kVoltageCommand) ||
+          command.decode(buffer->data, 0, static_cast<int>(buffer->data_size)) < 0) {
+        ++malformed_;
+        return;
+      }
+      inbox_.Receive(command, bus::WallClockUtime());
+    } catch (const std::exception& e) {
+      std::cerr << "flexid-rig: a voltage command could not be handled: " << e.what() << "\n";
+    }
+  }
+  int64_t malformed() const { return malformed_; }
+
+ private:
+  CommandInbox& inbox_;
+  int64_t malformed_ = 0;
+};
+
+// The effects of --effect for the one actuator of a closed loop. Throws model::InputError.
+std::vector<std::unique_ptr<Effect>> ClosedLoopEffects(const RigArgs& args) {
+  std::vector<std::unique_ptr<Effect>> effects;
+  for (const std::string& spec : args.effects) {
+    const ActuatorEffect effect = ParseActuatorEffect(spec);
+    if (!effect.actuator_id.empty() && effect.actuator_id != args.actuator_ids.front())
+      throw model::InputError("effect \"" + spec + "\": no actuator \"" + effect.actuator_id +
+                              "\" (actuators: " + args.actuator_ids.front() + ")");
+    effects.push_back(ParseEffect(effect.effect));
+  }
+  return effects;
+}
+
+// --closed-loop: one actuator driven by signed voltage commands. Returns the exit code.
+int RunClosedLoopCommand(const RigArgs& args) {
+  if (!args.out_path.empty())
+    throw UsageError("--out and --closed-loop cannot be combined (a closed loop needs the bus)");
+  if (args.lcm_url.empty()) throw UsageError("--closed-loop needs --lcm URL");
+  if (args.actuator_ids.size() != 1)
+    throw UsageError("--closed-loop drives one actuator: give one --actuator");
+  CheckActuatorIds(args.actuator_ids);
+  if (!args.protocol.empty())
+    throw UsageError(
+        "--closed-loop and --protocol cannot be combined (the controller's "
+        "commands are the voltage)");
+  if (!(args.duration_s > 0.0 && std::isfinite(args.duration_s)))
+    throw UsageError("--closed-loop needs --duration S, finite and > 0 s");
+  if (!(args.command_timeout_s > 0.0 && args.command_timeout_s <= 60.0))
+    throw UsageError("--command-timeout must be > 0 and <= 60 s");
+  if (!(args.speed == 0.0 || (args.speed >= 1e-3 && std::isfinite(args.speed))))
+    throw UsageError("--speed must be 0 (as fast as possible) or a finite number >= 0.001");
+  const RigOptions options = BusRigOptions(args);
+  const double samples = std::ceil(args.duration_s * args.rate_Hz - 1e-9);
+  if (samples > static_cast<double>(kMaxRigSamples))
+    throw UsageError("--duration at --rate-hz needs more than " + std::to_string(kMaxRigSamples) +
+                     " samples");
+  const std::string& id = args.actuator_ids.front();
+  ClosedLoopPlant plant(LoadModel(args.model_path), ClosedLoopEffects(args), options);
+  const flexid::auth::Key key = ReadSharedKey(args, "--closed-loop checks the signed commands");
+
+  lcm::LCM lcm(bus::WithReceiveBuffer(args.lcm_url, 4 << 20));  // commands come every sample
+  if (!lcm.good()) throw OperationError("cannot open the LCM bus [url: " + args.lcm_url + "]");
+  const bus::Channels channels(args.channel_prefix);
+  if (!args.start_utime_given) plant.SetStartUtime(StartUtimeOnTheBus(lcm, channels, args));
+  CommandInbox inbox(key, id, args.command_timeout_s,
+                     [](const std::string& line) { std::cerr << line << "\n"; });
+  CommandHandler handler(inbox);
+  lcm.subscribeFunction(bus::Exactly(channels.Command(id)), &CommandHandler::OnCommandThunk,
+                        &handler);
+  LcmSink sink(lcm, channels, id, args.trial_control ? &key : nullptr);
+
+  InstallStopSignals();
+
+  ClosedLoopRunOptions run;
+  run.speed = args.speed;
+  run.trial_control = args.trial_control;
+  run.command_timeout_s = args.command_timeout_s;
+  std::ostringstream protocol;
+  protocol << "closed-loop:duration=" << args.duration_s;
+  run.protocol = protocol.str();
+  const RunSummary summary = RunClosedLoop(
+      plant, static_cast<int64_t>(samples), inbox, sink,
+      [&lcm](int timeout_ms) { lcm.handleTimeout(timeout_ms); }, run, &stop_requested);
+  const CommandCounts& counts = inbox.counts();
+  std::cout << SummaryLine(summary) << "; commands: " << counts.accepted << " accepted, "
+            << counts.Refused() + handler.malformed() << " refused (" << counts.refused_unsigned
+            << " unsigned, " << counts.refused_bad_signature << " bad signature, "
+            << counts.refused_stale << " stale, " << counts.refused_other + handler.malformed()
+            << " other), " << counts.timeouts << " timeouts to 0 V" << std::endl;
+  if (summary.failed_messages > 0) {
+    std::cerr << "flexid-rig: " << summary.failed_messages
+              << " messages could not be sent [url: " << args.lcm_url << "]\n";
+    return 1;
+  }
+  if (summary.interrupted) {
+    std::cerr << "flexid-rig: interrupted after " << summary.samples << " of " << samples
+              << " samples\n";
+    return 1;
+  }
+  return 0;
+}
+
 // Returns the exit code (0 or 1); throws UsageError / model::InputError for bad input.
 int RunRigCommand(const RigArgs& args) {
+  if (args.closed_loop) return RunClosedLoopCommand(args);
+  if (args.closed_loop_options_given)
+    throw UsageError("--duration and --command-timeout belong to --closed-loop");
+  if (args.protocol.empty()) throw UsageError("--protocol SPEC is required (or --closed-loop)");
   if (!args.out_path.empty()) return WriteRecording(args);
   if (args.lcm_url.empty())
     throw UsageError("--lcm URL (on the bus) or --out FILE.csv is required");
@@ -288,28 +457,13 @@ int RunRigCommand(const RigArgs& args) {
 
   const Protocol protocol = ParseProtocol(args.protocol);
   const model::TsModel model = LoadModel(args.model_path);
-  RigOptions options;
-  options.rate_Hz = args.rate_Hz;
-  // Without --start-utime, the wall clock until flexidd is asked (StartUtimeOnTheBus).
-  options.start_utime = args.start_utime_given ? args.start_utime : bus::WallClockUtime();
-  options.noise_mm = args.noise_mm;
-  options.seed = args.seed;
-  std::string why;
-  if (!options.IsValid(&why)) throw UsageError(why);
+  const RigOptions options = BusRigOptions(args);
   std::vector<Rig> rigs =
       MakeActuatorRigs(model, protocol, args.actuator_ids, args.effects, options);
 
   // Trial control changes data, so it is signed: the key is read before anything is sent.
   std::optional<flexid::auth::Key> key;
-  if (args.trial_control) {
-    try {
-      key = flexid::auth::ReadKeyFile(flexid::auth::ClientKeyFilePath(args.key_file));
-    } catch (const flexid::auth::KeyError& e) {
-      throw OperationError(std::string(e.what()) +
-                           " (--trial-control signs with flexidd's key: --key-file PATH or "
-                           "FLEXID_KEY_FILE)");
-    }
-  }
+  if (args.trial_control) key = ReadSharedKey(args, "--trial-control signs");
   lcm::LCM lcm(args.lcm_url);
   if (!lcm.good()) throw OperationError("cannot open the LCM bus [url: " + args.lcm_url + "]");
   const bus::Channels channels(args.channel_prefix);
@@ -330,11 +484,7 @@ int RunRigCommand(const RigArgs& args) {
     actuators.push_back({.rig = &rigs[i], .sink = sinks.back().get()});
   }
 
-  struct sigaction action = {};
-  action.sa_handler = OnStopSignal;
-  sigemptyset(&action.sa_mask);
-  sigaction(SIGINT, &action, nullptr);
-  sigaction(SIGTERM, &action, nullptr);
+  InstallStopSignals();
 
   const RunSummary summary = RunRigs(
       actuators, {.speed = args.speed, .trial_control = args.trial_control}, &stop_requested);
@@ -385,8 +535,8 @@ int main(int argc, char** argv) {
                  "staircase:levels=2/4/6/8,dwell=S | hold:level=V,duration=S | "
                  "sweep:level=V[,frequencies=0.0025/0.02/0.031/0.054/0.11/0.15/1.1][,cycles=3]"
                  "[,duty=0.5] | "
-                 "random:levels=V1/V2/...,dwell_min=S,dwell_max=S,duration=S[,seed=1]")
-      ->required();
+                 "random:levels=V1/V2/...,dwell_min=S,dwell_max=S,duration=S[,seed=1]"
+                 " (required unless --closed-loop)");
   CLI::Option* speed =
       app.add_option("--speed", args.speed, "Times faster than real time; 0: as fast as possible")
           ->capture_default_str();
@@ -414,6 +564,17 @@ int main(int argc, char** argv) {
   CLI::Option* key_file = app.add_option(
       "--key-file", args.key_file,
       "flexidd's key, to sign trial control (default $FLEXID_KEY_FILE, else var/flexidd.key)");
+  CLI::Option* closed_loop = app.add_flag(
+      "--closed-loop", args.closed_loop,
+      "One actuator driven by a controller's signed voltage commands on PREFIX/<ID>/COMMAND "
+      "(flexid-control) for --duration seconds, instead of --protocol");
+  CLI::Option* duration =
+      app.add_option("--duration", args.duration_s, "--closed-loop: message time to play, s");
+  CLI::Option* command_timeout =
+      app.add_option("--command-timeout", args.command_timeout_s,
+                     "--closed-loop: with no accepted command for this long (wall clock, s) the "
+                     "voltage goes to 0 V; also how old a command may be when it arrives")
+          ->capture_default_str();
   app.footer(
       "Examples:\n  flexid-rig --lcm 'udpm://239.255.76.67:7667?ttl=0' --actuator S1 \\\n"
       "    --protocol square:level=5,period=220,cycles=5 --speed 100 --effect back_relaxation\n"
@@ -428,8 +589,9 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
     args.start_utime_given = start_utime->count() > 0;
-    for (const CLI::Option* option :
-         {lcm, channel_prefix, speed, start_utime, trial_control, key_file})
+    args.closed_loop_options_given = duration->count() > 0 || command_timeout->count() > 0;
+    for (const CLI::Option* option : {lcm, channel_prefix, speed, start_utime, trial_control,
+                                      key_file, closed_loop, command_timeout})
       if (option->count() > 0) args.bus_options_given.push_back(option->get_name());
     return flexid::rig::RunRigCommand(args);
   } catch (const CLI::Success& e) {

@@ -184,9 +184,16 @@ struct ColumnLayout {
   std::size_t time_index = 0;
   std::size_t voltage_index = 0;
   std::size_t deflection_index = 0;
+  bool has_voltage = false;
   bool has_deflection = false;
   std::size_t max_index = 0;  // highest index read
 };
+
+// The required columns, e.g. "t_s,voltage_V,deflection_mm".
+std::string ExpectedColumns(const CsvReadOptions& options) {
+  return std::string(kTimeColumn) + (options.require_voltage ? ",voltage_V" : "") +
+         (options.require_deflection ? ",deflection_mm" : "");
+}
 
 std::string DescribeHeader(const std::vector<std::string_view>& fields) {
   constexpr std::size_t kMaxNamesShown = 8;
@@ -212,7 +219,8 @@ ColumnLayout ParseHeader(std::string_view line, std::size_t line_number, const s
     bool found = false;
     std::size_t index = 0;
   };
-  std::array<Wanted, 3> wanted = {Wanted{kTimeColumn, true}, Wanted{kVoltageColumn, true},
+  std::array<Wanted, 3> wanted = {Wanted{kTimeColumn, true},
+                                  Wanted{kVoltageColumn, options.require_voltage},
                                   Wanted{kDeflectionColumn, options.require_deflection}};
   for (std::size_t i = 0; i < fields.size(); ++i) {
     const std::string_view name = TrimBlanks(fields[i]);
@@ -239,8 +247,8 @@ ColumnLayout ParseHeader(std::string_view line, std::size_t line_number, const s
       if (i > 0) problem += ", ";
       problem += Quoted(missing[i]);
     }
-    problem += " (header has: " + DescribeHeader(fields) + "; expected at least t_s,voltage_V" +
-               (options.require_deflection ? ",deflection_mm" : "") + ")";
+    problem += " (header has: " + DescribeHeader(fields) + "; expected at least " +
+               ExpectedColumns(options) + ")";
     Fail(source, line_number, 1, problem);
   }
 
@@ -248,9 +256,10 @@ ColumnLayout ParseHeader(std::string_view line, std::size_t line_number, const s
   layout.field_count = fields.size();
   layout.time_index = wanted[0].index;
   layout.voltage_index = wanted[1].index;
+  layout.has_voltage = wanted[1].found;
   layout.has_deflection = wanted[2].found;
   layout.deflection_index = wanted[2].index;
-  layout.max_index = std::max({layout.time_index, layout.voltage_index,
+  layout.max_index = std::max({layout.time_index, layout.has_voltage ? layout.voltage_index : 0,
                                layout.has_deflection ? layout.deflection_index : 0});
   return layout;
 }
@@ -283,9 +292,11 @@ class RowParser {
            "time is not strictly increasing (" + FormatNumber(t_s) + " after " +
                FormatNumber(recording->t_s.back()) + ")");
     }
-    const double voltage_V = Number(line, line_number, layout_.voltage_index, kVoltageColumn);
     recording->t_s.push_back(t_s);
-    recording->voltage_V.push_back(voltage_V);
+    if (layout_.has_voltage) {
+      recording->voltage_V.push_back(
+          Number(line, line_number, layout_.voltage_index, kVoltageColumn));
+    }
     if (layout_.has_deflection) {
       recording->deflection_mm.push_back(
           Number(line, line_number, layout_.deflection_index, kDeflectionColumn));
@@ -352,8 +363,7 @@ Recording ParseRecordingCsv(std::string_view text, const std::string& source_nam
   }
   if (!have_header) {
     Fail(source_name, lines.line_number(), 1,
-         std::string("missing header row (expected at least the columns t_s,voltage_V") +
-             (options.require_deflection ? ",deflection_mm" : "") + ")");
+         "missing header row (expected at least the columns " + ExpectedColumns(options) + ")");
   }
   const std::size_t header_line_number = lines.line_number();
   const ColumnLayout layout = ParseHeader(line, header_line_number, source_name, options);
@@ -362,7 +372,7 @@ Recording ParseRecordingCsv(std::string_view text, const std::string& source_nam
   recording.source = source_name;
   const auto expected_rows = static_cast<std::size_t>(std::count(text.begin(), text.end(), '\n'));
   recording.t_s.reserve(expected_rows + 1);
-  recording.voltage_V.reserve(expected_rows + 1);
+  if (layout.has_voltage) recording.voltage_V.reserve(expected_rows + 1);
   if (layout.has_deflection) recording.deflection_mm.reserve(expected_rows + 1);
 
   RowParser rows(source_name, layout);

@@ -27,7 +27,8 @@ namespace flexid::model {
 
 struct Recording {
   std::vector<double> t_s;            // strictly increasing, finite, not necessarily uniform
-  std::vector<double> voltage_V;      // applied voltage, same length as t_s
+  std::vector<double> voltage_V;      // applied voltage, same length as t_s, or empty if the
+                                      // file had no voltage column (only when not required)
   std::vector<double> deflection_mm;  // same length as t_s, or empty if the file had no
                                       // deflection column (only when not required)
   std::string source;                 // file name used in error messages
@@ -37,6 +38,10 @@ struct CsvReadOptions {
   // false: a file without a deflection_mm column is accepted (deflection_mm stays empty),
   // e.g. a voltage protocol to simulate. A deflection_mm column, if present, is read.
   bool require_deflection = true;
+  // false: a file without a voltage_V column is accepted (voltage_V stays empty), e.g. a
+  // reference deflection t_s,deflection_mm for a controller. A voltage_V column, if
+  // present, is read.
+  bool require_voltage = true;
 };
 
 // Reads and validates a recording file. Throws InputError ("FILE: cannot open: ..." when

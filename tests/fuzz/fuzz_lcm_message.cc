@@ -27,6 +27,7 @@
 #include <flexid/status_t.hpp>
 #include <flexid/trial_control2_t.hpp>
 #include <flexid/trial_control_t.hpp>
+#include <flexid/voltage_command_t.hpp>
 #include <flexid/voltage_sample_t.hpp>
 #include <vector>
 
@@ -94,7 +95,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   const bool patch = (data[0] & 0x80) != 0;
   const uint8_t* message = data + 1;
   const size_t n = size - 1;
-  switch ((data[0] & 0x7F) % 9) {  // which message type; bit 7: patch in its fingerprint
+  switch ((data[0] & 0x7F) % 10) {  // which message type; bit 7: patch in its fingerprint
     case 0:
       Check<flexid::voltage_sample_t>("voltage_sample_t", wire::kVoltageSample, message, n, patch);
       break;
@@ -122,6 +123,10 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
       break;
     case 8:
       Check<flexid::trial_control2_t>("trial_control2_t", wire::kTrialControl2, message, n, patch);
+      break;
+    case 9:
+      Check<flexid::voltage_command_t>("voltage_command_t", wire::kVoltageCommand, message, n,
+                                       patch);
       break;
   }
   return 0;
