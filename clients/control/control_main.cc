@@ -44,12 +44,13 @@
 #include <optional>
 #include <sstream>
 #include <string>
+#include <vector>
 
 #include "bus/channels.h"
 #include "bus/clock.h"
+#include "bus/fan_out.h"
 #include "bus/ids.h"
 #include "bus/lcm_url.h"
-#include "bus/rpc_client.h"
 #include "clients/cli/command.h"
 #include "clients/control/reference_input.h"
 #include "clients/control/session.h"
@@ -92,19 +93,39 @@ model::TsModel LoadControlModel(const ControlArgs& args, lcm::LCM& lcm,
     *source = args.model_path;
     return model::AsTsModel(model::ReadModelFile(args.model_path));
   }
-  bus::RpcClient client(lcm, channels, args.controller_id + "-rpc");
+  // Every flexidd on the bus answers a read-only request (bus/fan_out.h); the one that
+  // records the actuator answers with its model, the others "not found".
   const nlohmann::json request = {{"actuator", args.actuator_id}};
-  const auto reply = client.Call("model", request.dump(), std::chrono::milliseconds(2000));
-  if (!reply)
+  bus::FanOutOptions fan_out;
+  fan_out.timeout = std::chrono::milliseconds(2000);
+  const bus::FanOutResult answers =
+      bus::FanOut(lcm, channels, args.controller_id + "-rpc", "model", request.dump(), {}, fan_out);
+  if (answers.replies.empty())
     throw OperationError("no flexidd answered the model request within 2 s (give --model) [url: " +
                          args.lcm_url + "]");
-  if (reply->message.status != flexid::rpc_reply_t::kOk)
-    throw OperationError("flexidd has no model for " + args.actuator_id + ": " +
-                         reply->message.error + " (identify one, or give --model)");
-  const nlohmann::json result = nlohmann::json::parse(reply->message.result_json, nullptr, false);
+  std::vector<const flexid::rpc_reply_t*> models;
+  std::string errors;
+  for (const flexid::rpc_reply_t& r : answers.replies) {
+    if (r.status == flexid::rpc_reply_t::kOk)
+      models.push_back(&r);
+    else
+      errors += (errors.empty() ? "" : "; ") + r.daemon_id + ": " + r.error;
+  }
+  if (models.empty())
+    throw OperationError("flexidd has no model for " + args.actuator_id + ": " + errors +
+                         " (identify one, or give --model)");
+  if (models.size() > 1) {
+    std::string daemons;
+    for (const flexid::rpc_reply_t* r : models)
+      daemons += (daemons.empty() ? "" : ", ") + r->daemon_id;
+    throw OperationError("several daemons hold a model of " + args.actuator_id + " (" + daemons +
+                         "): configure the actuator on one daemon only, or give --model");
+  }
+  const flexid::rpc_reply_t* reply = models.front();
+  const nlohmann::json result = nlohmann::json::parse(reply->result_json, nullptr, false);
   if (!result.is_object() || !result.contains("model"))
     throw OperationError("flexidd's model reply carries no model");
-  *source = "flexidd's active model of " + args.actuator_id + " (v" +
+  *source = "flexidd " + reply->daemon_id + "'s active model of " + args.actuator_id + " (v" +
             result.value("version", nlohmann::json(0)).dump() + ")";
   return model::AsTsModel(model::ParseModelJson(result.at("model").dump(), *source));
 }
