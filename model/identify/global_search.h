@@ -19,13 +19,11 @@
 namespace flexid::model::global_fit {
 
 struct GlobalSearch {
-  // Raising an estimate's orders (header): its choices are fixed, the dead time
-  // with them. Throws InputError when there are no recordings.
+  // Throws InputError when there are no recordings.
   GlobalSearch(const std::vector<Recording> &data, const GlobalIdentifyOptions &given);
 
   const std::vector<Recording> &recordings;
-  const GlobalEstimate *const raising;  // GlobalIdentifyOptions::raise_order_of
-  GlobalIdentifyOptions options;        // as given, or as raising fixes them
+  GlobalIdentifyOptions options;
   GlobalEstimate result;
   Problem problem;            // the data the structure is chosen on (every factor-th sample)
   Mask usable;                // the samples a fit may use
@@ -55,7 +53,6 @@ struct GlobalSearch {
   void RunStage(const std::string &stage, const std::vector<GlobalStructure> &candidates,
                 const std::vector<std::vector<std::vector<double>>> &starts,
                 const std::vector<bool> &also_screened = {});
-  void Raise();
   void Select();
   void SplitDynamics();
   void ChooseRealisation();
