@@ -304,6 +304,8 @@ flexid::voltage_command_t Command(double voltage_V, int64_t sequence, int64_t se
   command.sequence = sequence;
   command.controller_id = "test";
   command.mode = flexid::voltage_command_t::kTrack;
+  command.reference_mm = 10.0;
+  command.reference_utime = command.utime - 1;
   command.sent_utime = sent_utime;
   command.nonce = auth::RandomNonce();
   if (key) auth::Sign(*key, &command);

@@ -16,12 +16,14 @@
 // is refused then, with exit 2 and one line naming it.
 //
 // On the bus: every deflection sample on PREFIX/<ID>/DEFLECTION is answered with a signed
-// voltage_command_t on PREFIX/<ID>/COMMAND for the next sample (session.h; signed with
-// flexidd's key, --key-file, as trial control). The run stops when the reference ends, on a
-// stale measurement (--stale-after seconds of wall time without a deflection), on a
-// critical alert about the actuator on PREFIX/ALERT, or on SIGTERM/SIGINT: each stop sends
-// a 0 V command (mode kStop) and publishes an alert of kind control_stop on PREFIX/ALERT
-// (severity info when the reference ended, warning on a signal, critical otherwise).
+// voltage_command_t on PREFIX/<ID>/COMMAND for the next sample, carrying the reference at
+// that deflection sample (session.h; signed with flexidd's key, --key-file, as trial
+// control; flexid-dashboard draws the reference from it). The run stops when the reference
+// ends, on a stale measurement (--stale-after seconds of wall time without a deflection), on
+// a critical alert about the actuator on PREFIX/ALERT, or on SIGTERM/SIGINT: each stop
+// sends a 0 V command (mode kStop) and publishes an alert of kind control_stop on
+// PREFIX/ALERT (severity info when the reference ended, warning on a signal, critical
+// otherwise).
 //
 // Prints one summary line on stdout; --out writes the run as CSV
 // t_s,reference_mm,measured_mm,voltage_V,model_mm. Exit 0 when the reference was followed to
@@ -223,6 +225,8 @@ class ControlLoop {
     message.controller_id = args_.controller_id;
     message.mode =
         command.stop ? flexid::voltage_command_t::kStop : flexid::voltage_command_t::kTrack;
+    message.reference_mm = command.reference_mm;
+    message.reference_utime = command.reference_utime;
     message.sent_utime = bus::WallClockUtime();
     auth::Sign(key_, &message);
     if (lcm_.publish(command_channel_, &message) != 0) ++failed_;

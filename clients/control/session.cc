@@ -53,7 +53,9 @@ std::optional<Command> ControlSession::OnDeflection(int64_t utime, double deflec
   return Command{.utime = utime + sample_period_us_,
                  .voltage_V = step.voltage_V,
                  .sequence = ++sequence_,
-                 .stop = false};
+                 .stop = false,
+                 .reference_mm = step.reference_mm,
+                 .reference_utime = utime};
 }
 
 std::optional<StopReason> ControlSession::StaleAt(int64_t wall_utime) const {

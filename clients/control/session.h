@@ -39,6 +39,10 @@ struct Command {
   double voltage_V = 0.0;
   int64_t sequence = 0;  // 1, 2, ...
   bool stop = false;
+  // The reference at the deflection sample this command answers (r_k at that sample's
+  // message time); a stop carries none (0 and 0).
+  double reference_mm = 0.0;
+  int64_t reference_utime = 0;
 };
 
 // One line of the run's log (control_main.cc --out).
