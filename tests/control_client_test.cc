@@ -67,6 +67,19 @@ TEST(ControlSession, StopsAfterTheReferenceAndOnAStaleMeasurement) {
   EXPECT_FALSE(running.Stop(control::StopReason::kSignal));  // once
 }
 
+TEST(ControlSession, ModelMismatchAlertsStopOnlyAControllerWithoutFeedback) {
+  for (const char* kind : {"residual", "drift", "back_relaxation"}) {
+    EXPECT_FALSE(control::AlertStopsControl(kind, /*feedback=*/true)) << kind;
+    EXPECT_TRUE(control::AlertStopsControl(kind, /*feedback=*/false)) << kind;
+  }
+  for (const char* kind : {"sensor_dropout", "storage_failing", "a_kind_added_later"}) {
+    EXPECT_TRUE(control::AlertStopsControl(kind, true)) << kind;
+    EXPECT_TRUE(control::AlertStopsControl(kind, false)) << kind;
+  }
+  EXPECT_FALSE(control::AlertStopsControl("control_stop", true));
+  EXPECT_FALSE(control::AlertStopsControl("control_stop", false));
+}
+
 TEST(ControlSession, NoMeasurementWithinTheStartTimeoutIsNoticed) {
   const control::ControlSession session = Session();
   EXPECT_FALSE(session.StartTimedOut(kWall + 9'000'000));

@@ -18,6 +18,12 @@ const char* StopReasonName(StopReason reason) {
   return "?";
 }
 
+bool AlertStopsControl(const std::string& kind, bool feedback) {
+  if (kind == "control_stop") return false;
+  const bool model_mismatch = kind == "residual" || kind == "drift" || kind == "back_relaxation";
+  return !(model_mismatch && feedback);
+}
+
 ControlSession::ControlSession(model::control::Controller controller, const SessionOptions& options,
                                int64_t start_wall_utime)
     : controller_(std::move(controller)),
