@@ -27,6 +27,7 @@
 #include <cmath>
 #include <complex>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <fstream>
 #include <memory>
@@ -89,6 +90,7 @@ model::Recording RigRecording(const std::string& spec, uint64_t seed) {
 struct PlantCase {
   std::string name;
   model::TsModel model;  // identified
+  double noise_mm;       // the plant's sensor noise (sigma)
   std::function<std::unique_ptr<testing::LoopPlant>()> make;
 };
 
@@ -110,7 +112,8 @@ Reference WithLeadIn(const Reference& reference) {
   return Reference(t_s, y_mm, reference.source());
 }
 
-std::vector<ReferenceCase> References(const model::TsModel& model) {
+std::vector<ReferenceCase> References(const PlantCase& plant) {
+  const model::TsModel& model = plant.model;
   const model::control::SteadyStateMap steady(model, -8.0, 8.0);
   std::string levels;
   for (int volts = 1; volts <= 5; ++volts) {
@@ -125,8 +128,21 @@ std::vector<ReferenceCase> References(const model::TsModel& model) {
            "random:levels=" + levels + ",dwell_min=100,dwell_max=200,duration=1200,seed=3", 0.1))});
   const model::TransferFunction frozen = model::FrozenModelAt(model, 2.5);
   for (double frequency_Hz : {0.01, 0.05, 0.2}) {
-    const double amplitude_mm =
-        2.0 * std::abs(model::FrequencyResponse(frozen, 2.0 * std::numbers::pi * frequency_Hz));
+    const double swing_V = 2.0;
+    const double gain_mm_per_V =
+        std::abs(model::FrequencyResponse(frozen, 2.0 * std::numbers::pi * frequency_Hz));
+    const double amplitude_mm = swing_V * gain_mm_per_V;
+    // What the actuator can reach at F at all: the largest swing around 2.5 V within the
+    // default limits (8 V is 5.5 V above 2.5 V; a swing a at F moves at 2 pi F a <= 5 V/s),
+    // through the model's gain at F. Printed beside the sensor's 0.02 mm noise: below it,
+    // no reference at F means anything.
+    const double reach_V = std::min(5.5, 5.0 / (2.0 * std::numbers::pi * frequency_Hz));
+    std::printf(
+        "%-9s sine %g Hz: gain %.4g mm/V (static %.3g); reference +-%.4g mm; within "
+        "the limits +-%.2f V reaches +-%.4g mm (sensor noise %.2g mm)\n",
+        plant.name.c_str(), frequency_Hz, gain_mm_per_V,
+        std::abs(model::FrequencyResponse(frozen, 0.0)), amplitude_mm, reach_V,
+        reach_V * gain_mm_per_V, plant.noise_mm);
     const double duration_s = std::max(600.0, 6.0 / frequency_Hz);
     char spec[160];
     std::snprintf(spec, sizeof spec, "sine:level=%.4f,amplitude=%.5f,frequency=%g,duration=%g",
@@ -186,7 +202,8 @@ int main(int argc, char** argv) {
     const model::GlobalEstimate rig_model =
         model::IdentifyGlobalTs({RigRecording("square:level=2,period=220,cycles=2", 11),
                                  RigRecording("square:level=8,period=220,cycles=2", 12)});
-    plants.push_back({"rig", rig_model.model, [] { return std::make_unique<RigLoopPlant>(21); }});
+    plants.push_back(
+        {"rig", rig_model.model, kNoise_mm, [] { return std::make_unique<RigLoopPlant>(21); }});
     std::printf("rig: model identified from 2 V and 8 V square waves: %s\n",
                 rig_model.structure.Describe().c_str());
   }
@@ -195,7 +212,7 @@ int main(int argc, char** argv) {
     const testing::TsRecording staircase =
         testing::RecordTsPlant(plant, testing::TsStaircase(80.0), 71);
     const model::GlobalEstimate ts_model = model::IdentifyGlobalTs({staircase.recording});
-    plants.push_back({"ts_plant", ts_model.model,
+    plants.push_back({"ts_plant", ts_model.model, plant.noise_std_mm,
                       [plant] { return std::make_unique<testing::TsPlantLoop>(plant, 72); }});
     std::printf(
         "ts_plant (seed 7, %zu rules, dead time %.2f s): model identified from its "
@@ -206,7 +223,7 @@ int main(int argc, char** argv) {
               "RMSE mm", "RMSE %", "V rms", "charge Vs", "peak Vs/220s");
   std::vector<std::string> ratios;
   for (const PlantCase& plant : plants) {
-    for (const ReferenceCase& reference : References(plant.model)) {
+    for (const ReferenceCase& reference : References(plant)) {
       std::vector<double> scored;
       for (size_t k = 0; k < reference.reference.t_s().size(); ++k)
         if (reference.reference.t_s()[k] >= kLeadIn_s)

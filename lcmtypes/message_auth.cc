@@ -206,13 +206,15 @@ std::string CanonicalForm(const flexid::trial_control2_t& control) {
 }
 
 std::string CanonicalForm(const flexid::voltage_command_t& command) {
-  std::string out = "flexid.voltage_command_t/1\n";
+  std::string out = "flexid.voltage_command_t/2\n";
   AppendField(&out, command.utime);
   AppendField(&out, command.actuator_id);
   AppendField(&out, command.voltage_V);
   AppendField(&out, command.sequence);
   AppendField(&out, command.controller_id);
   AppendField(&out, static_cast<int64_t>(command.mode));
+  AppendField(&out, command.reference_mm);
+  AppendField(&out, command.reference_utime);
   AppendField(&out, command.sent_utime);
   AppendField(&out, command.nonce);
   return out;

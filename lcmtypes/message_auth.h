@@ -20,9 +20,11 @@
 //                                                   args_json nonce
 //   trial_control2_t: "flexid.trial_control2_t/1\n" utime actuator_id action protocol
 //                                                   sent_utime nonce
-//   voltage_command_t: "flexid.voltage_command_t/1\n" utime actuator_id voltage_V sequence
-//                                                   controller_id mode sent_utime nonce
-// (voltage_V in the shortest decimal form that reads back to the same double, to_chars).
+//   voltage_command_t: "flexid.voltage_command_t/2\n" utime actuator_id voltage_V sequence
+//                                                   controller_id mode reference_mm
+//                                                   reference_utime sent_utime nonce
+// (voltage_V and reference_mm in the shortest decimal form that reads back to the same
+// double, to_chars). Version 1 had no reference; its signatures do not pass as version 2's.
 // `auth` is the lowercase hex HMAC-SHA256(key, canonical form): 64 characters.
 //
 // The key: 32 random bytes, written as one line of 64 hex digits in a file that only the

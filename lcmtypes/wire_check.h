@@ -111,9 +111,10 @@ inline constexpr std::initializer_list<Field> kTrialControl = {F::kInt64, F::kSt
                                                                F::kString};
 inline constexpr std::initializer_list<Field> kTrialControl2 = {
     F::kInt64, F::kString, F::kInt8, F::kString, F::kInt64, F::kString, F::kString};
+// utime .. mode, reference_mm, reference_utime, sent_utime, nonce, auth
 inline constexpr std::initializer_list<Field> kVoltageCommand = {
-    F::kInt64, F::kString, F::kDouble, F::kInt64, F::kString,
-    F::kInt8,  F::kInt64,  F::kString, F::kString};  // utime .. mode, sent_utime, nonce, auth
+    F::kInt64,  F::kString, F::kDouble, F::kInt64,  F::kString, F::kInt8,
+    F::kDouble, F::kInt64,  F::kInt64,  F::kString, F::kString};
 inline constexpr std::initializer_list<Field> kRpcRequest = {
     F::kInt64, F::kString, F::kString, F::kString, F::kString, F::kString, F::kString};
 inline constexpr std::initializer_list<Field> kRpcReply = {F::kInt64, F::kString, F::kString,

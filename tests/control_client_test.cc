@@ -37,7 +37,10 @@ TEST(ControlSession, AnswersEachSampleForTheNextAndIgnoresOldOnes) {
   ASSERT_TRUE(first);
   EXPECT_EQ(first->utime, kStart + 100'000);
   EXPECT_EQ(first->sequence, 1);
-  EXPECT_GT(first->voltage_V, 0.0);                        // 10 mm wanted, 0 measured
+  EXPECT_GT(first->voltage_V, 0.0);  // 10 mm wanted, 0 measured
+  // It carries the reference at the sample it answers.
+  EXPECT_EQ(first->reference_utime, kStart);
+  EXPECT_DOUBLE_EQ(first->reference_mm, 10.0);
   EXPECT_FALSE(session.OnDeflection(kStart, 0.0, kWall));  // the same sample again
   const auto later = session.OnDeflection(kStart + 300'000, 0.5, kWall + 10'000);  // 2 missed
   ASSERT_TRUE(later);
@@ -59,8 +62,22 @@ TEST(ControlSession, StopsAfterTheReferenceAndOnAStaleMeasurement) {
   ASSERT_TRUE(stop);
   EXPECT_TRUE(stop->stop);
   EXPECT_EQ(stop->voltage_V, 0.0);
+  EXPECT_EQ(stop->reference_utime, 0);  // a stop follows no reference
   EXPECT_EQ(stop->utime, running.last_utime() + 100'000);
   EXPECT_FALSE(running.Stop(control::StopReason::kSignal));  // once
+}
+
+TEST(ControlSession, ModelMismatchAlertsStopOnlyAControllerWithoutFeedback) {
+  for (const char* kind : {"residual", "drift", "back_relaxation"}) {
+    EXPECT_FALSE(control::AlertStopsControl(kind, /*feedback=*/true)) << kind;
+    EXPECT_TRUE(control::AlertStopsControl(kind, /*feedback=*/false)) << kind;
+  }
+  for (const char* kind : {"sensor_dropout", "storage_failing", "a_kind_added_later"}) {
+    EXPECT_TRUE(control::AlertStopsControl(kind, true)) << kind;
+    EXPECT_TRUE(control::AlertStopsControl(kind, false)) << kind;
+  }
+  EXPECT_FALSE(control::AlertStopsControl("control_stop", true));
+  EXPECT_FALSE(control::AlertStopsControl("control_stop", false));
 }
 
 TEST(ControlSession, NoMeasurementWithinTheStartTimeoutIsNoticed) {
@@ -95,6 +112,8 @@ flexid::voltage_command_t Signed(int64_t utime, double voltage_V, int64_t sequen
   command.sequence = sequence;
   command.controller_id = "c1";
   command.mode = flexid::voltage_command_t::kTrack;
+  command.reference_mm = 10.0;
+  command.reference_utime = utime - 100'000;
   command.sent_utime = sent_utime;
   auth::Sign(key, &command);
   return command;
@@ -112,9 +131,25 @@ TEST(CommandInbox, AcceptsFreshSignedCommandsInOrderAndRefusesTheRest) {
   flexid::voltage_command_t other = Signed(kStart, 3.0, 3, kWall, key);
   other.actuator_id = "S2";
   EXPECT_NE(inbox.Receive(other, kWall), "");
-  EXPECT_EQ(inbox.counts().Refused(), 3);
+  // Signed, but a field no controller sends: refused before the signature is looked at.
+  flexid::voltage_command_t ahead = Signed(kStart, 3.0, 3, kWall, key);
+  ahead.reference_utime = kStart + 100'000;
+  auth::Sign(key, &ahead);
+  EXPECT_EQ(inbox.Receive(ahead, kWall),
+            "invalid: reference_utime 1700000000100000 is after the command's utime "
+            "1700000000000000");
+  flexid::voltage_command_t nan_reference = Signed(kStart, 3.0, 3, kWall, key);
+  nan_reference.reference_mm = std::nan("");
+  auth::Sign(key, &nan_reference);
+  EXPECT_EQ(inbox.Receive(nan_reference, kWall), "invalid: reference_mm is not finite (nan)");
+  // The signature covers the reference: changed after signing, it no longer matches.
+  flexid::voltage_command_t moved = Signed(kStart, 3.0, 3, kWall, key);
+  moved.reference_mm = 11.0;
+  EXPECT_EQ(inbox.Receive(moved, kWall), "bad signature");
+  EXPECT_EQ(inbox.counts().Refused(), 6);
   EXPECT_EQ(inbox.counts().refused_unsigned, 1);
   EXPECT_EQ(inbox.counts().refused_stale, 1);
+  EXPECT_EQ(inbox.counts().refused_bad_signature, 1);
 
   EXPECT_DOUBLE_EQ(inbox.VoltageFor(kStart, kWall), 0.0);  // nothing accepted yet
   EXPECT_EQ(inbox.Receive(Signed(kStart + 100'000, 2.5, 4, kWall, key), kWall), "");

@@ -8,7 +8,8 @@
 //     controller sees coming 60 s ahead);
 //   - the measurement stops: the 0 V stop command comes within the stale timeout (0.5 s)
 //     plus 0.5 s of scheduling slack, with a control_stop alert;
-//   - a critical alert and SIGTERM stop the run the same way;
+//   - a critical alert and SIGTERM stop the run the same way (but not a critical alert of
+//     model mismatch, which the feedback corrects);
 //   - the rig refuses unsigned, badly signed and stale commands (counted) and applies a
 //     valid one;
 //   - a reference outside the model's reachable range is refused in one line before any
@@ -271,18 +272,35 @@ TEST(ControlSafety, AStaleMeasurementSendsZeroVoltsWithinTheTimeout) {
       });
 }
 
+// A critical residual alert (the deflection departs from flexidd's model) does not stop
+// the predictive controller, whose feedback corrects it; a critical sensor_dropout does.
 TEST(ControlSafety, ACriticalAlertStopsTheRun) {
   ExpectStopsOn(
       "critical_alert",
       [](BusListener& listener, ChildProcess&, FakeSource&) {
         flexid::alert_t alert;
+        alert.utime = 1;
         alert.actuator_id = "S1";
-        alert.kind = "storage_failing";
+        alert.kind = "residual";
         alert.severity = flexid::alert_t::kCritical;
-        alert.text = "a critical alert";
+        alert.start_utime = alert.end_utime = 1;
+        alert.magnitude_mm = 1.0;
+        alert.threshold_mm = 0.1;
+        alert.text = "a critical residual";
+        listener.lcm().publish(bus::Channels().Alert(), &alert);
+        std::this_thread::sleep_for(300ms);
+        alert.kind = "sensor_dropout";
+        alert.text = "a critical dropout";
         listener.lcm().publish(bus::Channels().Alert(), &alert);
       },
-      [](BusListener&) {});
+      [](BusListener& listener) {
+        for (const flexid::alert_t& alert : listener.alerts())
+          if (alert.kind == "control_stop") {
+            EXPECT_NE(alert.text.find("critical alert sensor_dropout"), std::string::npos)
+                << alert.text;
+            EXPECT_EQ(alert.text.find("residual"), std::string::npos) << alert.text;
+          }
+      });
 }
 
 TEST(ControlSafety, SigtermStopsTheRun) {
@@ -304,6 +322,8 @@ flexid::voltage_command_t Command(double voltage_V, int64_t sequence, int64_t se
   command.sequence = sequence;
   command.controller_id = "test";
   command.mode = flexid::voltage_command_t::kTrack;
+  command.reference_mm = 10.0;
+  command.reference_utime = command.utime - 1;
   command.sent_utime = sent_utime;
   command.nonce = auth::RandomNonce();
   if (key) auth::Sign(*key, &command);

@@ -15,6 +15,7 @@
 #include <flexid/prediction_t.hpp>
 #include <flexid/rpc_reply_t.hpp>
 #include <flexid/rpc_request_t.hpp>
+#include <flexid/voltage_command_t.hpp>
 #include <flexid/voltage_sample_t.hpp>
 #include <functional>
 #include <lcm/lcm-cpp.hpp>
@@ -387,6 +388,52 @@ TEST(LiveStore, PredictionsTakeOverFromSamplesWithoutDrawingOneTwice) {
   EXPECT_TRUE(history["predicted_mm"][24].is_null());
 }
 
+// A controller's reference, from its commands: a series of its own, batched, decimated,
+// kept for new pages; a stop ends the line (null), and decimation never drops that.
+TEST(LiveStore, CommandsBringTheReferenceAsASeriesOfItsOwn) {
+  StoreOptions options;
+  options.max_points_per_batch = 5;
+  LiveStore store(options);
+  for (int k = 0; k < 20; ++k)
+    ASSERT_EQ(store.AddReference({"S1", 1'000'000 + k * 100'000, k < 10 ? 10.0 : 15.0}),
+              AddOutcome::kAccepted);
+  // Out of order, not finite, a bad id: refused and counted.
+  EXPECT_EQ(store.AddReference({"S1", 1'500'000, 12.0}), AddOutcome::kOutOfOrder);
+  EXPECT_EQ(store.AddReference({"S1", 3'000'000, std::numeric_limits<double>::infinity()}),
+            AddOutcome::kInvalid);
+  EXPECT_EQ(store.AddReference({"S 1", 3'000'000, 1.0}), AddOutcome::kInvalid);
+  // The stop, then two more samples: the stop is kept though decimation keeps 5 of 23.
+  ASSERT_EQ(store.AddReference({"S1", 3'050'000, kNaN}), AddOutcome::kAccepted);
+  ASSERT_EQ(store.AddReference({"S1", 9'000'000, 20.0}), AddOutcome::kAccepted);
+  ASSERT_EQ(store.AddReference({"S1", 9'100'000, 20.0}), AddOutcome::kAccepted);
+  EXPECT_EQ(store.FlushBatch(), 0u);  // no points: only the reference
+  const EventWait wait = store.WaitEvents(0, std::chrono::milliseconds(0));
+  ASSERT_EQ(wait.events.size(), 1u);
+  const json s1 = json::parse(wait.events[0].data)["actuators"][0];
+  EXPECT_EQ(s1["id"], "S1");
+  EXPECT_TRUE(s1["t_s"].empty());
+  const json& reference = s1["reference"];
+  ASSERT_EQ(reference["t_s"].size(), 6u);  // 5 evenly spread and the stop
+  EXPECT_DOUBLE_EQ(reference["t_s"][0].get<double>(), 1.0);
+  EXPECT_DOUBLE_EQ(reference["reference_mm"][0].get<double>(), 10.0);
+  bool stop_kept = false;
+  for (size_t i = 0; i < reference["t_s"].size(); ++i)
+    if (reference["reference_mm"][i].is_null()) {
+      stop_kept = true;
+      EXPECT_DOUBLE_EQ(reference["t_s"][i].get<double>(), 3.05);
+    }
+  EXPECT_TRUE(stop_kept) << reference.dump();
+  EXPECT_DOUBLE_EQ(reference["t_s"][5].get<double>(), 9.1);  // the last is always kept
+  EXPECT_DOUBLE_EQ(reference["reference_mm"][5].get<double>(), 20.0);
+  // New pages get it from the state.
+  const json state = store.StateJson();
+  EXPECT_EQ(state["actuators"][0]["reference"], reference);
+  EXPECT_EQ(state["actuators"][0]["references"], 23);
+  EXPECT_EQ(state["counters"]["references"], 23);
+  EXPECT_EQ(state["counters"]["bad_messages"], 2);
+  EXPECT_EQ(state["counters"]["out_of_order"], 1);
+}
+
 TEST(LiveStore, HeldSamplesAreBounded) {
   StoreOptions options;
   options.max_points_per_batch = 10;
@@ -754,6 +801,25 @@ class DashboardServerTest : public ::testing::Test {
     lcm_.publish("FLEXID/" + channel_id + "/DEFLECTION", &d);
   }
 
+  // A controller's command for `id` answering its sample at reference_utime (as
+  // flexid-control sends it; the dashboard does not check the signature).
+  void PublishCommand(const std::string& id, int64_t reference_utime, double reference_mm,
+                      int8_t mode = flexid::voltage_command_t::kTrack) {
+    flexid::voltage_command_t c;
+    c.utime = reference_utime + 100'000;
+    c.actuator_id = id;
+    c.voltage_V = mode == flexid::voltage_command_t::kTrack ? 3.5 : 0.0;
+    c.sequence = ++sequence_;
+    c.controller_id = "control-1";
+    c.mode = mode;
+    c.reference_mm = mode == flexid::voltage_command_t::kTrack ? reference_mm : 0.0;
+    c.reference_utime = mode == flexid::voltage_command_t::kTrack ? reference_utime : 0;
+    c.sent_utime = 1'800'000'000'000'000;
+    c.nonce = "0123456789abcdef";
+    c.auth = std::string(64, 'a');
+    lcm_.publish("FLEXID/" + id + "/COMMAND", &c);
+  }
+
   void PublishAlert(const std::string& id, int64_t utime, const std::string& kind) {
     flexid::alert_t a;
     a.utime = utime;
@@ -790,6 +856,7 @@ class DashboardServerTest : public ::testing::Test {
   std::thread bus_thread_;
   std::atomic<bool> stop_{false};
   int port_ = 0;
+  int64_t sequence_ = 0;
 };
 
 TEST_F(DashboardServerTest, ServesThePageAndUPlotWithAStrictPolicy) {
@@ -869,6 +936,53 @@ TEST_F(DashboardServerTest, SamplesChartAnActuatorWithoutAModel) {
   EXPECT_EQ(s2["versions"], json::array());
   EXPECT_EQ(state["counters"]["samples"], 10);
   EXPECT_EQ(state["counters"]["bad_replies"], 0);
+}
+
+// An actuator under control: the reference from its commands beside its samples, in
+// /api/state; a command with an impossible value is counted and named, not drawn.
+TEST_F(DashboardServerTest, TheStateCarriesTheReferenceOfAnActuatorUnderControl) {
+  FakeDaemon daemon(lcm_);
+  for (int k = 0; k < 5; ++k) {
+    PublishSamples("S1", 1'000'000'000 + k * 100'000, 3.5, 9.0 + 0.1 * k);
+    PublishCommand("S1", 1'000'000'000 + k * 100'000, k < 3 ? 10.0 : 12.5);
+  }
+  PublishCommand("S1", 1'000'400'000, 0.0, flexid::voltage_command_t::kStop);
+  json state = WaitForState([](const json& s) {
+    return !s["actuators"].empty() && s["actuators"][0]["reference"]["t_s"].size() == 6 &&
+           s["actuators"][0]["history"]["t_s"].size() == 5;
+  });
+  const json& s1 = state["actuators"][0];
+  EXPECT_EQ(s1["reference"]["reference_mm"], json({10.0, 10.0, 10.0, 12.5, 12.5, nullptr}));
+  EXPECT_EQ(s1["reference"]["t_s"],
+            json({1000.0, 1000.1, 1000.2, 1000.3, 1000.4, 1000.5}));  // the stop: its utime
+  EXPECT_EQ(s1["history"]["t_s"], json({1000.0, 1000.1, 1000.2, 1000.3, 1000.4}));
+  EXPECT_EQ(state["counters"]["references"], 6);
+  EXPECT_EQ(state["counters"]["bad_messages"], 0);
+
+  // A reference that is not finite, one for a time after its command's, one on another
+  // actuator's channel: each counted, the last named; none drawn.
+  PublishCommand("S1", 1'000'500'000, kNaN);
+  flexid::voltage_command_t ahead;
+  ahead.utime = 1'000'600'000;
+  ahead.actuator_id = "S1";
+  ahead.voltage_V = 1.0;
+  ahead.sequence = 99;
+  ahead.controller_id = "control-1";
+  ahead.mode = flexid::voltage_command_t::kTrack;
+  ahead.reference_mm = 10.0;
+  ahead.reference_utime = 1'000'700'000;
+  ahead.sent_utime = 0;
+  lcm_.publish("FLEXID/S1/COMMAND", &ahead);
+  state = WaitForState([](const json& s) { return s["counters"]["bad_messages"] == 2; });
+  EXPECT_EQ(state["last_problem"],
+            "a command on FLEXID/S1/COMMAND: reference_utime 1000700000 is after the command's "
+            "utime 1000600000");
+  PublishCommand("S1", 1'000'600'000, 10.0);
+  lcm_.publish("FLEXID/S2/COMMAND", &ahead);
+  state = WaitForState([](const json& s) { return s["counters"]["bad_messages"] == 3; });
+  EXPECT_EQ(state["last_problem"], "a command on FLEXID/S2/COMMAND is for actuator \"S1\"");
+  EXPECT_EQ(state["counters"]["references"], 7);
+  for (const json& actuator : state["actuators"]) EXPECT_NE(actuator["id"], "S2");
 }
 
 TEST_F(DashboardServerTest, AnActuatorFlexiddRefusesSaysWhyItHasNoVersions) {
@@ -965,8 +1079,8 @@ TEST_F(DashboardServerTest, EventsStreamDeliversAPrediction) {
 
 TEST_F(DashboardServerTest, MalformedMessagesAreCountedNotFatal) {
   const std::string garbage = "not an lcm message";
-  for (const char* channel :
-       {"FLEXID/S1/PREDICTION", "FLEXID/ALERT", "FLEXID/S1/VOLTAGE", "FLEXID/S1/DEFLECTION"})
+  for (const char* channel : {"FLEXID/S1/PREDICTION", "FLEXID/ALERT", "FLEXID/S1/VOLTAGE",
+                              "FLEXID/S1/DEFLECTION", "FLEXID/S1/COMMAND"})
     lcm_.publish(channel, garbage.data(), static_cast<unsigned>(garbage.size()));
   // A prediction whose string length field claims ~2 GB.
   flexid::prediction_t p;
@@ -990,13 +1104,13 @@ TEST_F(DashboardServerTest, MalformedMessagesAreCountedNotFatal) {
   // Well-formed samples of S3 on S2's channels.
   PublishSamples("S3", 1'000'000, 1.0, 1.0, "S2");
   const json state = WaitForState([](const json& s) {
-    return s["counters"]["bad_messages"] == 8 && s["counters"]["predictions"] == 1;
+    return s["counters"]["bad_messages"] == 9 && s["counters"]["predictions"] == 1;
   });
   EXPECT_EQ(state["actuators"].size(), 1u);
   EXPECT_EQ(state["counters"]["samples"], 0);
   const auto health = Client().Get("/healthz");
   ASSERT_TRUE(health);
-  EXPECT_EQ(json::parse(health->body)["bad_messages"], 8);
+  EXPECT_EQ(json::parse(health->body)["bad_messages"], 9);
 }
 
 TEST(Assets, EveryAssetIsEmbedded) {

@@ -74,6 +74,7 @@ TEST(WireCheck, LayoutsMatchTheGeneratedEncoders) {
   flexid::voltage_command_t command;
   command.actuator_id = "S1";
   command.controller_id = "control-1";
+  command.reference_mm = 10.0;
   command.nonce = "0123456789abcdef";
   command.auth = std::string(64, 'b');
   ExpectLayoutMatches(command, kVoltageCommand);

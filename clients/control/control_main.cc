@@ -16,12 +16,15 @@
 // is refused then, with exit 2 and one line naming it.
 //
 // On the bus: every deflection sample on PREFIX/<ID>/DEFLECTION is answered with a signed
-// voltage_command_t on PREFIX/<ID>/COMMAND for the next sample (session.h; signed with
-// flexidd's key, --key-file, as trial control). The run stops when the reference ends, on a
-// stale measurement (--stale-after seconds of wall time without a deflection), on a
-// critical alert about the actuator on PREFIX/ALERT, or on SIGTERM/SIGINT: each stop sends
-// a 0 V command (mode kStop) and publishes an alert of kind control_stop on PREFIX/ALERT
-// (severity info when the reference ended, warning on a signal, critical otherwise).
+// voltage_command_t on PREFIX/<ID>/COMMAND for the next sample, carrying the reference at
+// that deflection sample (session.h; signed with flexidd's key, --key-file, as trial
+// control; flexid-dashboard draws the reference from it). The run stops when the reference
+// ends, on a stale measurement (--stale-after seconds of wall time without a deflection), on
+// a critical alert about the actuator on PREFIX/ALERT (but not one of model mismatch, which
+// the feedback corrects: AlertStopsControl, session.h), or on SIGTERM/SIGINT: each stop
+// sends a 0 V command (mode kStop) and publishes an alert of kind control_stop on
+// PREFIX/ALERT (severity info when the reference ended, warning on a signal, critical
+// otherwise).
 //
 // Prints one summary line on stdout; --out writes the run as CSV
 // t_s,reference_mm,measured_mm,voltage_V,model_mm. Exit 0 when the reference was followed to
@@ -42,6 +45,7 @@
 #include <lcm/lcm-cpp.hpp>
 #include <nlohmann/json.hpp>
 #include <optional>
+#include <set>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -223,6 +227,8 @@ class ControlLoop {
     message.controller_id = args_.controller_id;
     message.mode =
         command.stop ? flexid::voltage_command_t::kStop : flexid::voltage_command_t::kTrack;
+    message.reference_mm = command.reference_mm;
+    message.reference_utime = command.reference_utime;
     message.sent_utime = bus::WallClockUtime();
     auth::Sign(key_, &message);
     if (lcm_.publish(command_channel_, &message) != 0) ++failed_;
@@ -258,9 +264,21 @@ class ControlLoop {
     if (!wire::WellFormed(buffer->data, buffer->data_size, wire::kAlert) ||
         alert.decode(buffer->data, 0, static_cast<int>(buffer->data_size)) < 0)
       return;
-    if (alert.severity != flexid::alert_t::kCritical || alert.kind == "control_stop") return;
+    if (alert.severity != flexid::alert_t::kCritical) return;
     if (!alert.actuator_id.empty() && alert.actuator_id != args_.actuator_id) return;
     if (!session_.started()) return;
+    const bool feedback =
+        session_.controller().options().kind != model::control::ControllerKind::kOpenLoop;
+    if (!AlertStopsControl(alert.kind, feedback)) {
+      // Said once per kind: the operator sees it, and the feedback goes on correcting it.
+      if (alert.kind != "control_stop" && noted_kinds_.insert(alert.kind).second)
+        std::cerr << "flexid-control: critical " << alert.kind << " alert about "
+                  << args_.actuator_id
+                  << " (the deflection departs from flexidd's model; the feedback corrects "
+                     "it, control goes on): "
+                  << alert.text << "\n";
+      return;
+    }
     try {
       StopWith(StopReason::kCriticalAlert,
                "critical alert " + alert.kind + " (" + alert.text + ")");
@@ -274,6 +292,7 @@ class ControlLoop {
   const auth::Key& key_;
   ControlSession& session_;
   std::string command_channel_, alert_channel_;
+  std::set<std::string> noted_kinds_;  // critical alerts that did not stop control
   int64_t failed_ = 0;
 };
 

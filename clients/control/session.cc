@@ -18,6 +18,12 @@ const char* StopReasonName(StopReason reason) {
   return "?";
 }
 
+bool AlertStopsControl(const std::string& kind, bool feedback) {
+  if (kind == "control_stop") return false;
+  const bool model_mismatch = kind == "residual" || kind == "drift" || kind == "back_relaxation";
+  return !(model_mismatch && feedback);
+}
+
 ControlSession::ControlSession(model::control::Controller controller, const SessionOptions& options,
                                int64_t start_wall_utime)
     : controller_(std::move(controller)),
@@ -53,7 +59,9 @@ std::optional<Command> ControlSession::OnDeflection(int64_t utime, double deflec
   return Command{.utime = utime + sample_period_us_,
                  .voltage_V = step.voltage_V,
                  .sequence = ++sequence_,
-                 .stop = false};
+                 .stop = false,
+                 .reference_mm = step.reference_mm,
+                 .reference_utime = utime};
 }
 
 std::optional<StopReason> ControlSession::StaleAt(int64_t wall_utime) const {

@@ -11,7 +11,8 @@
 // one measured, and an alert (control_main.cc):
 //   finished           the reference has ended
 //   stale_measurement  no deflection for stale_after_s of wall time (default 0.5 s)
-//   critical_alert     a critical alert about the actuator on the ALERT channel
+//   critical_alert     a critical alert about the actuator on the ALERT channel that
+//                      stops control (AlertStopsControl)
 //   signal             SIGTERM or SIGINT
 // Before the first deflection nothing is sent; none within start_timeout_s is an error
 // without a command.
@@ -29,6 +30,20 @@ namespace flexid::control {
 enum class StopReason { kFinished, kStaleMeasurement, kCriticalAlert, kSignal };
 const char* StopReasonName(StopReason reason);  // "finished", "stale_measurement", ...
 
+// Whether a critical alert of this kind about the actuator stops control. Every kind does
+// (sensor_dropout, a daemon's failure, a kind added later: failing safe) except:
+//   - control_stop: a controller's own stop, not a finding about the actuator;
+//   - residual, drift, back_relaxation, when the controller has feedback (predictive, pi):
+//     they say the measured deflection departs from flexidd's model of it, which is what
+//     the feedback corrects (issue 17: "model error and effects such as back-relaxation
+//     are corrected"). Their severity is statistical, a multiple of the model's own
+//     residual noise (critical beyond 5 thresholds: 11 sigmas of the model's residual
+//     for the residual test, about 20 for the line tests; 0.23 mm on a model that fits to
+//     0.02 mm), not a hazard; the hazards are bounded
+//     by the voltage, rate and charge limits and by the stale-measurement stop. Open-loop
+//     inversion has no feedback, so for it they stop control.
+bool AlertStopsControl(const std::string& kind, bool feedback);
+
 struct SessionOptions {
   double stale_after_s = 0.5;     // wall clock, s (> 0)
   double start_timeout_s = 10.0;  // wall clock, s (> 0)
@@ -39,6 +54,10 @@ struct Command {
   double voltage_V = 0.0;
   int64_t sequence = 0;  // 1, 2, ...
   bool stop = false;
+  // The reference at the deflection sample this command answers (r_k at that sample's
+  // message time); a stop carries none (0 and 0).
+  double reference_mm = 0.0;
+  int64_t reference_utime = 0;
 };
 
 // One line of the run's log (control_main.cc --out).

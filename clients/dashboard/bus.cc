@@ -11,12 +11,15 @@
 #include <flexid/prediction_t.hpp>
 #include <flexid/rpc_reply_t.hpp>
 #include <flexid/rpc_request_t.hpp>
+#include <flexid/voltage_command_t.hpp>
 #include <flexid/voltage_sample_t.hpp>
+#include <limits>
 
 #include "bus/fan_out.h"
 #include "bus/ids.h"
 #include "bus/rpc_client.h"
 #include "clients/dashboard/model_versions.h"
+#include "lcmtypes/command_check.h"
 #include "lcmtypes/wire_check.h"
 
 namespace flexid::dashboard {
@@ -58,6 +61,8 @@ BusAdapter::BusAdapter(lcm::LCM& lcm, LiveStore& store, BusOptions options)
   Subscribe<&BusAdapter::HandleVoltage>(channels_.AllVoltages(), 1 << 16);
   Subscribe<&BusAdapter::HandleDeflection>(channels_.AllDeflections(), 1 << 16);
   Subscribe<&BusAdapter::HandlePrediction>(channels_.AllPredictions(), 1 << 16);
+  // Every actuator's commands, as AllPredictions() is built (bus/channels.cc).
+  Subscribe<&BusAdapter::HandleCommand>(bus::Exactly(channels_.prefix()) + "/.*/COMMAND", 1 << 16);
   Subscribe<&BusAdapter::HandleAlert>(bus::Exactly(channels_.Alert()), 1000);
   Subscribe<&BusAdapter::HandleReply>(bus::Exactly(channels_.RpcReply(options_.client_id)), 100);
   Subscribe<&BusAdapter::HandleOwnership>(bus::Exactly(channels_.Ownership()), 1000);
@@ -105,6 +110,31 @@ void BusAdapter::HandlePrediction(const lcm::ReceiveBuffer* rbuf, const std::str
   const AddOutcome outcome = store_.AddPrediction(p);
   if ((outcome == AddOutcome::kAccepted || outcome == AddOutcome::kCovered) && p.model_version > 0)
     MaybeFetchModel(p.actuator_id, p.model_version);
+}
+
+// A controller's command: the reference it follows (live_store.h). The dashboard holds no
+// key, so the signature is not checked; the values are, and a bad one is named in the
+// last problem.
+void BusAdapter::HandleCommand(const lcm::ReceiveBuffer* rbuf, const std::string& channel) {
+  flexid::voltage_command_t message;
+  if (!Decode(rbuf, wire::kVoltageCommand, &message)) {
+    store_.NoteBadMessage("a command on " + channel + " is not a voltage_command_t (version 2)");
+    return;
+  }
+  if (channel != channels_.Command(message.actuator_id)) {
+    store_.NoteBadMessage("a command on " + channel + " is for actuator \"" +
+                          message.actuator_id.substr(0, 64) + "\"");
+    return;
+  }
+  if (const std::string problem = wire::VoltageCommandProblem(message); !problem.empty()) {
+    store_.NoteBadMessage("a command on " + channel + ": " + problem);
+    return;
+  }
+  if (message.mode == flexid::voltage_command_t::kStop)
+    store_.AddReference(
+        {message.actuator_id, message.utime, std::numeric_limits<double>::quiet_NaN()});
+  else
+    store_.AddReference({message.actuator_id, message.reference_utime, message.reference_mm});
 }
 
 void BusAdapter::HandleAlert(const lcm::ReceiveBuffer* rbuf, const std::string&) {

@@ -1,5 +1,6 @@
 // The dashboard on the bus: subscribes to PREFIX/<actuator>/VOLTAGE, .../DEFLECTION (the
-// source's samples, so an actuator without a model has charts too), .../PREDICTION and
+// source's samples, so an actuator without a model has charts too), .../PREDICTION,
+// .../COMMAND (a controller's commands, for the reference they carry) and
 // PREFIX/ALERT (bus/channels.h; PREFIX is flexidd's channel_prefix, default FLEXID),
 // validates every message (lcmtypes/wire_check.h, then the channel against the message's
 // actuator) before the live store (live_store.h) takes it; the store decides which stream
@@ -105,6 +106,7 @@ class BusAdapter {
   void HandleVoltage(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
   void HandleDeflection(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
   void HandlePrediction(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
+  void HandleCommand(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
   void HandleAlert(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
   void HandleReply(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
   void HandleOwnership(const lcm::ReceiveBuffer* rbuf, const std::string& channel);

@@ -46,6 +46,22 @@ json ColumnsJson(const Points& points, const std::vector<size_t>& indices) {
           {"residual_mm", std::move(residual)}};
 }
 
+// The reference's columns, with every end of control (NaN) kept through the decimation,
+// so that a line never joins two control runs.
+template <typename Points>
+json ReferenceJson(const Points& points, std::vector<size_t> indices) {
+  for (size_t i = 0; i < points.size(); ++i)
+    if (std::isnan(points[i].reference_mm)) indices.push_back(i);
+  std::sort(indices.begin(), indices.end());
+  indices.erase(std::unique(indices.begin(), indices.end()), indices.end());
+  json t = json::array(), reference = json::array();
+  for (const size_t i : indices) {
+    t.push_back(SecondsOf(points[i].utime));
+    reference.push_back(Number(points[i].reference_mm));
+  }
+  return {{"t_s", std::move(t)}, {"reference_mm", std::move(reference)}};
+}
+
 json MembershipsJson(const std::vector<double>& memberships) {
   json out = json::array();
   for (const double m : memberships) out.push_back(Number(m));
@@ -55,6 +71,7 @@ json MembershipsJson(const std::vector<double>& memberships) {
 json CountersJson(const Counters& c) {
   return {{"predictions", c.predictions},
           {"samples", c.samples},
+          {"references", c.references},
           {"alerts", c.alerts},
           {"bad_messages", c.bad_messages},
           {"out_of_order", c.out_of_order},
@@ -266,6 +283,9 @@ void LiveStore::Restart(Series* s) {
   s->has_point = false;
   s->last_prediction_utime.reset();
   s->last_deflection_utime.reset();
+  s->reference_history.Clear();
+  s->reference_pending.clear();
+  s->last_reference_utime.reset();
 }
 
 void LiveStore::AppendPoint(Series* s, const Point& p) {
@@ -365,6 +385,29 @@ AddOutcome LiveStore::AddVoltage(const VoltageSample& in) {
   return AddOutcome::kAccepted;
 }
 
+AddOutcome LiveStore::AddReference(const ReferenceSample& in) {
+  const bool valid = bus::IsValidId(in.actuator_id) && !std::isinf(in.reference_mm);
+  std::lock_guard lock(mutex_);
+  AddOutcome refused = AddOutcome::kInvalid;
+  Series* s = Admit(in.actuator_id, valid, &refused);
+  if (!s) return refused;
+  if (s->last_reference_utime && in.utime <= *s->last_reference_utime) {
+    if (*s->last_reference_utime - in.utime <= options_.restart_gap_us) {
+      ++counters_.out_of_order;
+      return AddOutcome::kOutOfOrder;
+    }
+    // A new run far back in time: the old reference is not its reference.
+    s->reference_history.Clear();
+    s->reference_pending.clear();
+  }
+  s->last_reference_utime = in.utime;
+  if (s->reference_pending.size() >= options_.max_pending_points) Thin(&s->reference_pending);
+  s->reference_pending.push_back({in.utime, in.reference_mm});
+  ++s->references;
+  ++counters_.references;
+  return AddOutcome::kAccepted;
+}
+
 bool LiveStore::AddAlert(const Alert& alert) {
   std::lock_guard lock(mutex_);
   for (const Alert& held : alerts_)
@@ -436,6 +479,12 @@ void LiveStore::CountBadMessage() {
   ++counters_.bad_messages;
 }
 
+void LiveStore::NoteBadMessage(const std::string& problem) {
+  std::lock_guard lock(mutex_);
+  ++counters_.bad_messages;
+  last_problem_ = OneLine(problem);
+}
+
 void LiveStore::NoteBadReply(const std::string& problem) {
   std::lock_guard lock(mutex_);
   ++counters_.bad_replies;
@@ -471,10 +520,19 @@ size_t LiveStore::FlushBatch(Clock::time_point now) {
         if (!s.has_point || h.utime > s.last_utime) AppendPoint(&s, h);
       s.held.clear();
     }
-    if (s.pending.empty() && !s.reset) continue;
+    if (s.pending.empty() && s.reference_pending.empty() && !s.reset) continue;
     const std::vector<size_t> indices =
         DecimationIndices(s.pending.size(), options_.max_points_per_batch);
     json entry = ColumnsJson(s.pending, indices);
+    const std::vector<size_t> reference_indices =
+        DecimationIndices(s.reference_pending.size(), options_.max_points_per_batch);
+    json reference = ReferenceJson(s.reference_pending, reference_indices);
+    for (size_t i = 0; i < s.reference_pending.size(); ++i)
+      if (std::binary_search(reference_indices.begin(), reference_indices.end(), i) ||
+          std::isnan(s.reference_pending[i].reference_mm))
+        s.reference_history.Push(s.reference_pending[i]);
+    s.reference_pending.clear();
+    entry["reference"] = std::move(reference);
     entry["id"] = id;
     entry["received"] = s.received;
     entry["samples"] = s.samples;
@@ -501,11 +559,14 @@ json LiveStore::StateJson() const {
   for (const auto& [id, s] : series_) {
     std::vector<size_t> all(s.history.size());
     for (size_t i = 0; i < all.size(); ++i) all[i] = i;
+    std::vector<size_t> all_references(s.reference_history.size());
+    for (size_t i = 0; i < all_references.size(); ++i) all_references[i] = i;
     actuators.push_back(
         {{"id", id},
          {"daemon", daemons_.count(id) ? json(daemons_.at(id)) : json(nullptr)},
          {"received", s.received},
          {"samples", s.samples},
+         {"references", s.references},
          {"model_version", s.model_version},
          {"trial", s.trial_id},
          {"latest", s.has_point ? PointJson(s.latest) : json(nullptr)},
@@ -514,7 +575,8 @@ json LiveStore::StateJson() const {
          {"versions", s.versions.is_object() ? s.versions.at("versions") : json()},
          {"versions_total", s.versions.is_object() ? s.versions.at("total") : json()},
          {"versions_problem", s.versions.is_object() ? s.versions.at("problem") : json()},
-         {"history", ColumnsJson(s.history, all)}});
+         {"history", ColumnsJson(s.history, all)},
+         {"reference", ReferenceJson(s.reference_history, all_references)}});
   }
   json alerts = json::array();
   for (auto it = alerts_.rbegin(); it != alerts_.rend(); ++it) alerts.push_back(AlertJson(*it));

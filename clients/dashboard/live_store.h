@@ -28,10 +28,18 @@
 // ~7 batches a second, each one JSON document. The decimated points also go into a
 // per-actuator ring buffer, the history a freshly loaded page draws first.
 //
+// The reference. An actuator under control (flexid-control) has a reference deflection:
+// every voltage command (PREFIX/<id>/COMMAND) carries the reference at the deflection
+// sample it answers. It is a series of its own, with its own times, batched and decimated
+// like the points (never joined to them: the command comes after its sample, and after
+// flexidd's prediction of it); a stop command adds a gap (reference null), so that the
+// line ends where control ended.
+//
 // Event payloads (JSON; times are message time):
 //   points: {"actuators": [{"id", "received", "samples", "reset", "model_version", "trial",
 //             "memberships", "t_s": [..], "voltage_V": [..], "measured_mm": [..],
-//             "predicted_mm": [..], "residual_mm": [..]}], "counters": {..}}
+//             "predicted_mm": [..], "residual_mm": [..],
+//             "reference": {"t_s": [..], "reference_mm": [..]}}], "counters": {..}}
 //   alert:  AlertJson(alert)       model: SummarizeModel(...)       resync: {}
 //   versions: {"actuator", "versions": ModelVersionsFromJson(...) or null, "total" (versions
 //             flexidd has), "problem": null or why flexidd gave no list}
@@ -64,6 +72,12 @@ struct Point {
   double residual_mm = 0.0;   // measured - predicted (NaN: as predicted_mm)
 };
 
+// One point of an actuator's reference: its message time and value (NaN: control ended).
+struct ReferencePoint {
+  int64_t utime = 0;  // message time, microseconds
+  double reference_mm = 0.0;
+};
+
 // A sample as on PREFIX/<id>/VOLTAGE (voltage_sample_t) or PREFIX/<id>/DEFLECTION
 // (deflection_sample_t), without the channel.
 struct VoltageSample {
@@ -75,6 +89,15 @@ struct DeflectionSample {
   std::string actuator_id;
   int64_t utime = 0;  // message time, microseconds
   double deflection_mm = 0.0;
+};
+
+// The reference a controller follows, from a voltage command (voltage_command_t): the
+// reference at the deflection sample of message time utime, or the end of control (a
+// stop command at its utime: reference_mm NaN).
+struct ReferenceSample {
+  std::string actuator_id;
+  int64_t utime = 0;  // message time, microseconds
+  double reference_mm = 0.0;
 };
 
 struct Prediction {
@@ -127,6 +150,7 @@ enum class AddOutcome {
 struct Counters {
   int64_t predictions = 0;   // accepted (also those covered by a sample already drawn)
   int64_t samples = 0;       // voltage and deflection samples accepted
+  int64_t references = 0;    // reference samples accepted (from voltage commands)
   int64_t alerts = 0;        // accepted (duplicates not counted)
   int64_t bad_messages = 0;  // malformed, invalid values, unknown channel
   int64_t out_of_order = 0;  // predictions not after the previous one of their actuator
@@ -179,6 +203,9 @@ class LiveStore {
   AddOutcome AddDeflection(const DeflectionSample& sample, Clock::time_point now = Clock::now());
   // The voltage in force from sample.utime on, for the deflection samples that follow.
   AddOutcome AddVoltage(const VoltageSample& sample);
+  // A reference sample (finite, or NaN for the end of control), after the actuator's
+  // previous one; creates the actuator's card.
+  AddOutcome AddReference(const ReferenceSample& sample);
   // True when new (an alert already held, same time, actuator, kind and text, is ignored).
   // An alert creates its actuator's card.
   bool AddAlert(const Alert& alert);
@@ -196,6 +223,9 @@ class LiveStore {
   // card.
   void SetDaemon(const std::string& actuator_id, const std::string& daemon_id);
   void CountBadMessage();
+  // A message whose values are invalid: counted as a bad message, and `problem` (one line,
+  // naming the channel and the field) kept as the last problem.
+  void NoteBadMessage(const std::string& problem);
   // An RPC reply that failed or did not parse: counted, and `problem` (one line) kept as
   // the last problem for /api/state and /healthz.
   void NoteBadReply(const std::string& problem);
@@ -210,10 +240,11 @@ class LiveStore {
   size_t FlushBatch(Clock::time_point now = Clock::now());
 
   // /api/state: {"event_id", "counters", "last_problem", "actuators": [{"id", "received",
-  // "samples", "daemon" (null until heard), "model_version", "trial", "latest",
-  // "memberships", "model", "versions" (null until flexidd answered), "versions_total",
-  // "versions_problem", "history":
-  // {"t_s", ...}}], "alerts" (newest first)}.
+  // "samples", "references", "daemon" (null until heard), "model_version", "trial",
+  // "latest", "memberships", "model", "versions" (null until flexidd answered),
+  // "versions_total", "versions_problem", "history": {"t_s", ...}, "reference": {"t_s",
+  // "reference_mm"} (decimated as sent; null values end a control run)}], "alerts"
+  // (newest first)}.
   nlohmann::json StateJson() const;
   Counters counters() const;
   std::string last_problem() const;
@@ -229,13 +260,18 @@ class LiveStore {
 
  private:
   struct Series {
-    explicit Series(size_t capacity) : history(capacity) {}
+    explicit Series(size_t capacity) : history(capacity), reference_history(capacity) {}
     RingBuffer<Point> history;   // decimated, as sent
     std::vector<Point> pending;  // since the last batch
-    std::deque<Point> held;      // deflection samples waiting for their prediction (oldest first)
-    int64_t received = 0;        // predictions accepted
-    int64_t samples = 0;         // deflection samples accepted
-    int64_t last_utime = 0;      // of the newest point (pending or sent)
+    // The reference (ReferenceSample without the id), likewise.
+    RingBuffer<ReferencePoint> reference_history;
+    std::vector<ReferencePoint> reference_pending;
+    std::optional<int64_t> last_reference_utime;
+    int64_t references = 0;  // reference samples accepted
+    std::deque<Point> held;  // deflection samples waiting for their prediction (oldest first)
+    int64_t received = 0;    // predictions accepted
+    int64_t samples = 0;     // deflection samples accepted
+    int64_t last_utime = 0;  // of the newest point (pending or sent)
     bool has_point = false;
     bool reset = false;  // the stream restarted: the next batch tells the page to clear
     Point latest;

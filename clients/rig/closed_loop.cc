@@ -8,6 +8,7 @@
 #include <stdexcept>
 
 #include "bus/clock.h"
+#include "lcmtypes/command_check.h"
 #include "model/core/errors.h"
 
 namespace flexid::rig {
@@ -78,8 +79,8 @@ std::string CommandInbox::Receive(const flexid::voltage_command_t& command, int6
   int64_t* counter = &counts_.refused_other;
   if (command.actuator_id != actuator_id_) {
     why = "for actuator \"" + command.actuator_id + "\"";
-  } else if (!std::isfinite(command.voltage_V)) {
-    why = "a voltage that is not finite";
+  } else if (const std::string problem = wire::VoltageCommandProblem(command); !problem.empty()) {
+    why = "invalid: " + problem;
   } else {
     why = verifier_.Check(command, now_utime);
     if (why == "no signature")

@@ -9,7 +9,9 @@
 // answers the deflection of sample k - 1 with a command for utime_k.
 //
 // Commands (CommandInbox). Each is refused, counted and logged unless:
-//   - it is for this actuator;
+//   - it is for this actuator, and its fields hold possible values
+//     (lcmtypes/command_check.h: a finite voltage, a known mode, a reference at or before
+//     its time, ...);
 //   - it is signed with the shared key, its signature matches, its nonce is fresh and its
 //     sent_utime is within command_timeout_s of this host's clock (auth::Verifier);
 //   - it is not older in message time than the sample already played (a command for a
@@ -81,7 +83,7 @@ struct CommandCounts {
   int64_t refused_unsigned = 0;       // no signature
   int64_t refused_bad_signature = 0;  // a signature that does not match, or a bad nonce
   int64_t refused_stale = 0;          // sent too long ago, replayed, or for a passed sample
-  int64_t refused_other = 0;          // another actuator's, or a full nonce cache
+  int64_t refused_other = 0;          // another actuator's, invalid fields, a full nonce cache
   int64_t timeouts = 0;               // times the watchdog went to 0 V
   int64_t Refused() const {
     return refused_unsigned + refused_bad_signature + refused_stale + refused_other;

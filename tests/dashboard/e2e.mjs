@@ -1,7 +1,8 @@
 // The dashboard page in headless Chromium (Playwright, playwright-core), driven by
 // run_e2e.sh, which has started flexidd (knowing S1 and S2, refusing other actuators) and
 // flexid-dashboard and identified model MODEL_VERSION for actuator S1. Environment:
-// DASHBOARD_URL, RIG (flexid-rig), FLEXID (the command line), LCM_URL, RIG_START_UTIME,
+// DASHBOARD_URL, RIG (flexid-rig), CONTROL (flexid-control), FLEXID (the command line),
+// LCM_URL, RIG_START_UTIME,
 // MODEL_VERSION, CHROMIUM, SCREENSHOT, optional FLEXID_DOCS_SCREENSHOT; FLEXID_KEY_FILE
 // signs the command line's changes.
 //
@@ -15,7 +16,10 @@
 // S1's card and in the feed; `flexid diagnose --actuator S1 --trial N --propose` stores the
 // augmented model, which the page lists as an inactive proposal on MODEL_VERSION with its
 // effect and held-out gain; `flexid models activate` makes it the active one on the page,
-// and a replay of the trial runs on it. Then a screenshot. Exit 0 passed, 1 failed (with
+// and a replay of the trial runs on it. Last, flexid-control makes the rig (in closed loop,
+// with the back-relaxation the proposal holds) follow a staircase: S1's deflection chart
+// draws the reference (its reference points grow while the run goes on) beside the
+// measured and predicted lines, and the readout shows it. Then a screenshot. Exit 0 passed, 1 failed (with
 // dashboard-failure.png).
 import {execFile, spawn} from 'node:child_process';
 import {copyFileSync, mkdirSync} from 'node:fs';
@@ -23,7 +27,7 @@ import path from 'node:path';
 import {chromium} from 'playwright-core';
 
 const env = process.env;
-for (const name of ['DASHBOARD_URL', 'RIG', 'FLEXID', 'LCM_URL', 'RIG_START_UTIME', 'MODEL_VERSION',
+for (const name of ['DASHBOARD_URL', 'RIG', 'CONTROL', 'FLEXID', 'LCM_URL', 'RIG_START_UTIME', 'MODEL_VERSION',
   'SCREENSHOT']) {
   if (!env[name]) {
     console.error(`e2e.mjs: ${name} is not set (run tests/dashboard/run_e2e.sh)`);
@@ -53,6 +57,28 @@ function runRig(protocol, extra = [], actuators = 'S1') {
   });
 }
 
+// A closed-loop run: flexid-control follows `protocol` (a reference in mm) on S1 with the
+// active model, the rig in closed loop for `duration_s` (longer than the reference) plays
+// the back-relaxation the proposal holds; resolves when both exit 0 (the reference
+// followed to its end).
+function runControl(protocol, duration_s) {
+  const exit = (child, name) => new Promise((resolve, reject) => {
+    child.on('error', reject);
+    child.on('exit', (code) => (code === 0 ? resolve() : reject(new Error(`${name} exited ${code}`))));
+  });
+  const control = spawn(env.CONTROL, ['--lcm', env.LCM_URL, '--actuator', 'S1', '--protocol', protocol],
+    {stdio: ['ignore', 'ignore', 'inherit']});
+  const controlled = exit(control, 'flexid-control');
+  const rigArgs = ['--lcm', env.LCM_URL, '--actuator', 'S1', '--closed-loop', '--duration', String(duration_s),
+    '--speed', '10', '--noise-mm', '0.02', '--trial-control', '--start-utime', String(startUtime),
+    '--effect', 'back_relaxation:fraction=0.3,tau=60'];
+  startUtime += 500000000n;
+  return sleep(300).then(() => {
+    const rig = spawn(env.RIG, rigArgs, {stdio: ['ignore', 'ignore', 'inherit']});
+    return Promise.all([controlled, exit(rig, 'flexid-rig')]);
+  });
+}
+
 // `flexid ARGS...` on the test's bus; resolves with its stdout when it exits 0.
 function flexid(args, timeoutMs = 120000) {
   return new Promise((resolve, reject) => {
@@ -67,6 +93,7 @@ function flexid(args, timeoutMs = 120000) {
 const points = (page) => page.$eval(S1, (card) => Number(card.dataset.points));
 const card = (id) => `.card[data-actuator="${id}"]`;
 const chartPoints = (page, id) => page.$eval(card(id), (c) => Number(c.dataset.chartPoints));
+const referencePoints = (page) => page.$eval(S1, (c) => Number(c.dataset.referencePoints));
 // The text of an element's innermost parts, " · " between them (for the log and checks).
 const oneLine = (page, selector) => page.$eval(selector, (node) =>
   [...node.querySelectorAll('*')].filter((n) => n.children.length === 0 && n.textContent.trim())
@@ -206,6 +233,27 @@ try {
   await page.waitForSelector(`${S1} .model[data-model-version="${proposed}"]`, {timeout: 60000});
   await replay;
   log(`model line: ${await oneLine(page, `${S1} .model`)}`);
+
+  // Under control: the reference beside the measured and predicted deflection.
+  if ((await page.getAttribute(S1, 'data-controlled')) !== 'false') throw new Error('S1 shows a reference before any control');
+  let controlDone = false;
+  const control = runControl('staircase:levels=10/15,dwell=40', 140);  // 120 s: 10, 15, then 0 mm
+  control.then(() => { controlDone = true; }, () => { controlDone = true; });
+  await page.waitForSelector(`${S1}[data-controlled="true"]`, {timeout: 30000});
+  const referenceReadings = [];
+  let referenceReadout = '';
+  while (!controlDone && referenceReadings.length < 6) {
+    referenceReadings.push(await referencePoints(page));
+    const readout = await oneLine(page, `${S1} .readout`);
+    if (/reference/.test(readout)) referenceReadout = readout;
+    await sleep(500);
+  }
+  await control;
+  const rr = referenceReadings;
+  if (!(rr.length >= 3 && rr.every((n, i) => i === 0 || n > rr[i - 1])))
+    throw new Error(`S1's reference did not grow while under control: ${rr.join(' -> ')}`);
+  if (!/reference · (10|15)(\.[0-9]+)? mm/.test(referenceReadout)) throw new Error(`no reference in S1's readout: ${referenceReadout}`);
+  log(`under control: reference points ${rr.join(' -> ')}; readout: ${referenceReadout}`);
   await page.waitForTimeout(1000);  // the last batch drawn, the alerts' flash over
 
   if (problems.length) throw new Error(problems.join('\n'));

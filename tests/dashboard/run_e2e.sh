@@ -11,7 +11,8 @@
 # to flexidd) publish (their charts must grow from the samples alone), S1 plays a trial
 # with back-relaxation (an alert must appear), `flexid diagnose --propose` stores the
 # augmented model (the page must list it as a proposal) and `flexid models activate`
-# activates it (the page must show it active). Screenshot:
+# activates it (the page must show it active); flexid-control makes S1 follow a staircase in
+# closed loop (the page must draw the reference). Screenshot:
 # BUILD_DIR/test-artifacts/dashboard.png, and also $FLEXID_DOCS_SCREENSHOT when set.
 #
 # Exit 0 passed, 1 failed, 77 skipped (no /usr/bin/chromium or no
@@ -29,7 +30,7 @@ if [ ! -f "$here/node_modules/playwright-core/package.json" ] || ! command -v no
   echo "dashboard_e2e: SKIPPED: node or playwright-core missing (cd tests/dashboard && npm ci)"
   exit 77
 fi
-for b in daemon/flexidd clients/flexid clients/flexid-rig clients/flexid-dashboard; do
+for b in daemon/flexidd clients/flexid clients/flexid-rig clients/flexid-control clients/flexid-dashboard; do
   [ -x "$build/$b" ] || { echo "dashboard_e2e: $build/$b not built" >&2; exit 1; }
 done
 
@@ -103,6 +104,7 @@ echo "dashboard_e2e: model v$version active"
 
 mkdir -p "$build/test-artifacts"
 export DASHBOARD_URL="$url" RIG="$build/clients/flexid-rig" FLEXID="$build/clients/flexid" \
+  CONTROL="$build/clients/flexid-control" \
   LCM_URL="$lcm" \
   RIG_START_UTIME="$start" MODEL_VERSION="$version" CHROMIUM="$chromium" \
   SCREENSHOT="$build/test-artifacts/dashboard.png"

@@ -33,6 +33,7 @@
 
 #include "bus/ids.h"
 #include "daemon/rpc.h"
+#include "lcmtypes/command_check.h"
 #include "lcmtypes/wire_check.h"
 
 namespace {
@@ -60,6 +61,10 @@ void AfterDecode(const flexid::rpc_request_t& request) {
     (void)flexid::daemon::ParseArguments(request.args_json);
   } catch (const flexid::daemon::ArgumentError&) {
   }
+}
+// What the rig and the dashboard do with a decoded command before they use it.
+void AfterDecode(const flexid::voltage_command_t& command) {
+  (void)wire::VoltageCommandProblem(command);
 }
 template <typename Message>
 void AfterDecode(const Message&) {}

@@ -14,6 +14,7 @@
 #include <flexid/status_t.hpp>
 #include <flexid/trial_control2_t.hpp>
 #include <flexid/trial_control_t.hpp>
+#include <flexid/voltage_command_t.hpp>
 #include <flexid/voltage_sample_t.hpp>
 #include <fstream>
 #include <lcm/lcm-cpp.hpp>
@@ -127,6 +128,19 @@ int main(int argc, char** argv) {
   signed_control.nonce = "0123456789abcdef";
   signed_control.auth = std::string(64, 'a');
   WriteSeed(messages, 0x88, "trial_control2_t", signed_control);
+  flexid::voltage_command_t command{};
+  command.utime = t0 + 100000;
+  command.actuator_id = "S1";
+  command.voltage_V = 2.5;
+  command.sequence = 1;
+  command.controller_id = "control-1";
+  command.mode = flexid::voltage_command_t::kTrack;
+  command.reference_mm = 10.0;
+  command.reference_utime = t0;
+  command.sent_utime = t0;
+  command.nonce = "0123456789abcdef";
+  command.auth = std::string(64, 'b');
+  WriteSeed(messages, 0x89, "voltage_command_t", command);
   flexid::rpc_request_t q{};
   q.utime = t0;
   q.request_id = "r1";

@@ -3,7 +3,8 @@
 // model and its fit, the actuator's model versions (identified and proposed), and the
 // alerts as they arrive. An actuator without predictions (no model yet) shows its voltage
 // and measured deflection; the predicted line and the residual chart appear once
-// predictions flow.
+// predictions flow. An actuator under control (flexid-control) also has its reference
+// drawn in the deflection chart, from the commands' reference series.
 //
 // Data flow: GET /api/state (a snapshot, with the id of the last event it contains), then
 // an EventSource on /events?after=ID: "points" (batched, decimated points of every
@@ -14,7 +15,9 @@
 // 1 s, then up to 10 s, between tries.
 //
 // Hooks for tests: .card[data-actuator=ID] with data-points (points drawn so far),
-// data-chart-points (measured points in the deflection chart's data now), data-received
+// data-chart-points (measured points in the deflection chart's data now),
+// data-reference-points (reference values in it now), data-controlled ("true" once a
+// reference came), data-received
 // (predictions the server took), data-samples (deflection samples it took),
 // data-predicted ("true" once predictions show), data-model-version, data-daemon (the
 // flexidd recording it, shown as .daemon); in each card
@@ -34,7 +37,12 @@
     measured: '#2563eb',
     predicted: '#dc2626',
     residual: '#7c3aed',
+    reference: '#111827',
   };
+  // A reference sample stands for the points up to this long after it (message time): the
+  // reference comes from the command that answers a sample, so it shares the sample's time,
+  // but decimation may keep a neighbour instead.
+  const REFERENCE_HOLD_S = 2;
 
   const cards = new Map();  // actuator id -> card
   const daemons = new Map();  // actuator id -> the flexidd that records it
@@ -98,6 +106,8 @@
     root.dataset.received = '0';
     root.dataset.samples = '0';
     root.dataset.chartPoints = '0';
+    root.dataset.referencePoints = '0';
+    root.dataset.controlled = 'false';
     root.dataset.predicted = 'false';
     root.dataset.modelVersion = '0';
 
@@ -141,8 +151,10 @@
     const card = {
       id, root, daemon, trial, counter, readout, model, versions, alerts, none,
       data: {t: [], v: [], measured: [], predicted: [], residual: []},
+      reference: {t: [], mm: []},  // its own times; null ends a control run
       points: 0,
       predicted: false,  // predictions seen: the predicted line and the residual chart show
+      controlled: false,  // a reference seen: its line shows
       modelInfo: null,
       modelVersion: 0,
       dirty: true,
@@ -155,11 +167,13 @@
       deflection: makePlot(boxes.deflection, 'mm', [
         {label: 'measured mm', color: COLORS.measured},
         {label: 'predicted mm', color: COLORS.predicted, dash: [6, 4], width: 2},
+        {label: 'reference mm', color: COLORS.reference, dash: [2, 3], width: 2},
       ]),
       residual: makePlot(boxes.residual, 'mm', [{label: 'residual mm', color: COLORS.residual}]),
     };
     cards.set(id, card);
     showPredicted(card);
+    showControlled(card);
     showModel(card);
     showDaemon(id, daemons.get(id));
     return card;
@@ -172,6 +186,45 @@
     c.boxes.residual.parentElement.hidden = !c.predicted;
     c.plots.deflection.setSeries(2, {show: c.predicted});
     if (c.predicted) resizeAll();
+  }
+
+  // The reference line shows once the actuator is under control.
+  function showControlled(c) {
+    c.root.dataset.controlled = String(c.controlled);
+    c.plots.deflection.setSeries(3, {show: c.controlled});
+  }
+
+  function appendReference(c, cols) {
+    if (!cols || !cols.t_s) return;
+    const r = c.reference;
+    for (let i = 0; i < cols.t_s.length; i++) {
+      const last = r.t.length ? r.t[r.t.length - 1] : null;
+      if (last !== null && cols.t_s[i] - last > GAP_S) {
+        r.t.push(last + 0.001);
+        r.mm.push(null);
+      }
+      r.t.push(cols.t_s[i]);
+      r.mm.push(cols.reference_mm[i]);
+    }
+    if (!c.controlled && cols.reference_mm.some((x) => x !== null && x !== undefined)) {
+      c.controlled = true;
+      showControlled(c);
+    }
+    c.dirty = true;
+  }
+
+  // The reference at each point's time: the newest reference sample at or before it, within
+  // REFERENCE_HOLD_S (else none: no line).
+  function referenceAt(c) {
+    const t = c.data.t, r = c.reference;
+    const out = new Array(t.length).fill(null);
+    let j = -1;
+    for (let i = 0; i < t.length; i++) {
+      while (j + 1 < r.t.length && r.t[j + 1] <= t[i]) j++;
+      if (j >= 0 && t[i] - r.t[j] <= REFERENCE_HOLD_S && r.mm[j] !== null && r.mm[j] !== undefined)
+        out[i] = r.mm[j];
+    }
+    return out;
   }
 
   function notePredicted(c, cols, modelVersion) {
@@ -188,6 +241,7 @@
 
   function clearData(c) {
     for (const key of Object.keys(c.data)) c.data[key] = [];
+    c.reference = {t: [], mm: []};
   }
 
   function appendColumns(c, cols) {
@@ -219,6 +273,14 @@
     while (first < t.length && t[first] < cutoff) first++;
     first = Math.max(first, t.length - MAX_POINTS);
     if (first > 0) for (const key of Object.keys(c.data)) c.data[key].splice(0, first);
+    const r = c.reference;
+    let kept = 0;
+    while (kept < r.t.length && r.t[kept] < cutoff - REFERENCE_HOLD_S) kept++;
+    kept = Math.max(kept, r.t.length - MAX_POINTS);
+    if (kept > 0) {
+      r.t.splice(0, kept);
+      r.mm.splice(0, kept);
+    }
   }
 
   function scheduleDraw() {
@@ -234,12 +296,14 @@
       c.dirty = false;
       const d = c.data;
       c.plots.voltage.setData([d.t, d.v]);
-      c.plots.deflection.setData([d.t, d.measured, d.predicted]);
+      const reference = referenceAt(c);
+      c.plots.deflection.setData([d.t, d.measured, d.predicted, reference]);
       c.plots.residual.setData([d.t, d.residual]);
       c.root.dataset.points = String(c.points);
       let measured = 0;
       for (const x of d.measured) if (x !== null) measured++;
       c.root.dataset.chartPoints = String(measured);
+      c.root.dataset.referencePoints = String(reference.filter((x) => x !== null).length);
       c.counter.textContent = c.points.toLocaleString() + ' points';
     }
   }
@@ -267,6 +331,9 @@
       parts.push(['predicted', fmt(latest.predicted_mm, 4) + ' mm']);
       parts.push(['residual', fmt(latest.residual_mm, 3) + ' mm']);
     }
+    const r = c.reference;
+    if (c.controlled && r.mm.length && r.mm[r.mm.length - 1] !== null)
+      parts.push(['reference', fmt(r.mm[r.mm.length - 1], 4) + ' mm']);
     if (memberships && memberships.length > 1)
       parts.push(['rules', memberships.map((m) => fmt(m, 2)).join(' / ')]);
     c.readout.replaceChildren();
@@ -454,6 +521,8 @@
       clearData(c);
       c.points = 0;
       appendColumns(c, a.history);
+      appendReference(c, a.reference);
+      trim(c);
       notePredicted(c, a.history, a.model_version);
       c.modelVersion = a.model_version;
       c.modelInfo = a.model;
@@ -479,6 +548,8 @@
       const c = card(a.id);
       if (a.reset) clearData(c);
       appendColumns(c, a);
+      appendReference(c, a.reference);
+      trim(c);
       notePredicted(c, a, a.model_version);
       setReadout(c, lastOf(a), a.received, a.samples, a.trial, a.memberships);
       if (a.model_version !== c.modelVersion) {
