@@ -52,23 +52,13 @@ int main(int argc, char** argv) {
   app.add_option("--reply-timeout", flexid::cli::ReplyTimeout_s(),
                  "Seconds read-only requests wait for every daemon to answer (default 10)")
       ->check(CLI::PositiveNumber);
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::Success& e) {
-    return app.exit(e);
-  } catch (const CLI::ParseError& e) {
-    // One line, as for every other bad input (CLI11 would add a second, "Run with --help").
-    std::cerr << "flexid: " << e.what() << " (see flexid --help)\n";
-    return 2;
-  } catch (const flexid::cli::UsageError& e) {
-    std::cerr << "flexid: " << e.what() << '\n';
-    return 2;
-  } catch (const flexid::model::InputError& e) {
-    std::cerr << "flexid: " << e.what() << '\n';
-    return 2;
-  } catch (const std::exception& e) {
-    std::cerr << "flexid: " << e.what() << '\n';
-    return 1;
-  }
-  return 0;
+  // A parse error is one line, as for every other bad input (CLI11 would add a second,
+  // "Run with --help").
+  return flexid::cli::RunMain(
+      app, "flexid",
+      [&] {
+        app.parse(argc, argv);
+        return 0;
+      },
+      " (see flexid --help)");
 }

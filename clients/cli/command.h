@@ -9,7 +9,10 @@
 #pragma once
 
 #include <CLI/CLI.hpp>
+#include <iostream>
 #include <stdexcept>
+
+#include "model/core/errors.h"
 
 namespace flexid::cli {
 
@@ -19,6 +22,32 @@ struct UsageError : std::runtime_error {
 struct OperationError : std::runtime_error {
   using std::runtime_error::runtime_error;
 };
+
+// The end of main() in every flexid program: runs `body` (the parse and the work; it
+// returns the exit code) and turns what it throws into the exit code and one line on
+// stderr, "<program>: <what>": --help and --version 0 (CLI11 prints them), bad usage or
+// bad input 2 (CLI::ParseError, followed by `parse_hint`; UsageError; model::InputError),
+// any other failure 1.
+template <typename Body>
+int RunMain(CLI::App& app, const char* program, Body&& body, const char* parse_hint = "") {
+  try {
+    return body();
+  } catch (const CLI::Success& e) {
+    return app.exit(e);
+  } catch (const CLI::ParseError& e) {
+    std::cerr << program << ": " << e.what() << parse_hint << '\n';
+    return 2;
+  } catch (const UsageError& e) {
+    std::cerr << program << ": " << e.what() << '\n';
+    return 2;
+  } catch (const model::InputError& e) {
+    std::cerr << program << ": " << e.what() << '\n';
+    return 2;
+  } catch (const std::exception& e) {
+    std::cerr << program << ": " << e.what() << '\n';
+    return 1;
+  }
+}
 
 void RegisterTfCommand(CLI::App& app);
 void RegisterSimulateCommand(CLI::App& app);

@@ -418,22 +418,8 @@ int main(int argc, char** argv) {
                  "Names this controller in its commands (default control-<pid>)");
   app.add_option("--out", args.out_path,
                  "Write the run: t_s,reference_mm,measured_mm,voltage_V,model_mm");
-  try {
+  return flexid::cli::RunMain(app, "flexid-control", [&] {
     app.parse(argc, argv);
     return flexid::control::RunControl(args);
-  } catch (const CLI::Success& e) {
-    return app.exit(e);
-  } catch (const CLI::ParseError& e) {
-    std::cerr << "flexid-control: " << e.what() << '\n';
-    return 2;
-  } catch (const flexid::cli::UsageError& e) {
-    std::cerr << "flexid-control: " << e.what() << '\n';
-    return 2;
-  } catch (const flexid::model::InputError& e) {
-    std::cerr << "flexid-control: " << e.what() << '\n';
-    return 2;
-  } catch (const std::exception& e) {
-    std::cerr << "flexid-control: " << e.what() << '\n';
-    return 1;
-  }
+  });
 }

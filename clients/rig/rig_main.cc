@@ -586,7 +586,7 @@ int main(int argc, char** argv) {
       "    --effect S2/back_relaxation:fraction=0.3,tau=60\n"
       "  flexid-rig --out random.csv --protocol "
       "random:levels=2/4/6/8,dwell_min=20,dwell_max=60,duration=1200,seed=3");
-  try {
+  return flexid::cli::RunMain(app, "flexid-rig", [&] {
     app.parse(argc, argv);
     args.start_utime_given = start_utime->count() > 0;
     args.closed_loop_options_given = duration->count() > 0 || command_timeout->count() > 0;
@@ -594,19 +594,5 @@ int main(int argc, char** argv) {
                                       key_file, closed_loop, command_timeout})
       if (option->count() > 0) args.bus_options_given.push_back(option->get_name());
     return flexid::rig::RunRigCommand(args);
-  } catch (const CLI::Success& e) {
-    return app.exit(e);
-  } catch (const CLI::ParseError& e) {
-    std::cerr << "flexid-rig: " << e.what() << '\n';
-    return 2;
-  } catch (const flexid::cli::UsageError& e) {
-    std::cerr << "flexid-rig: " << e.what() << '\n';
-    return 2;
-  } catch (const flexid::model::InputError& e) {
-    std::cerr << "flexid-rig: " << e.what() << '\n';
-    return 2;
-  } catch (const std::exception& e) {
-    std::cerr << "flexid-rig: " << e.what() << '\n';
-    return 1;
-  }
+  });
 }
