@@ -5,7 +5,7 @@
 // values, time order, channel agreement) live inside daemon/daemon.cc and are covered by
 // tests/daemon_faults_test.cc.
 //
-// Input: byte 0 picks the type (its low 7 bits modulo 9, in the order of the switch below);
+// Input: byte 0 picks the type (its low 7 bits modulo 11, in the order of the switch below);
 // with bit 7 set the first 8 message bytes are overwritten by that type's fingerprint, so
 // that mutations reach the fields instead of stopping at the fingerprint. The other bytes
 // are the message.
@@ -21,6 +21,7 @@
 #include <cstdlib>
 #include <flexid/alert_t.hpp>
 #include <flexid/deflection_sample_t.hpp>
+#include <flexid/ownership_t.hpp>
 #include <flexid/prediction_t.hpp>
 #include <flexid/rpc_reply_t.hpp>
 #include <flexid/rpc_request_t.hpp>
@@ -62,6 +63,10 @@ void AfterDecode(const flexid::rpc_request_t& request) {
   } catch (const flexid::daemon::ArgumentError&) {
   }
 }
+// What every reader of an announcement checks first (bus/fan_out.h, DecodeOwnership).
+void AfterDecode(const flexid::ownership_t& announcement) {
+  (void)flexid::bus::IsValidPrefix(announcement.daemon_id);
+}
 // What the rig and the dashboard do with a decoded command before they use it.
 void AfterDecode(const flexid::voltage_command_t& command) {
   (void)wire::VoltageCommandProblem(command);
@@ -100,7 +105,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   const bool patch = (data[0] & 0x80) != 0;
   const uint8_t* message = data + 1;
   const size_t n = size - 1;
-  switch ((data[0] & 0x7F) % 10) {  // which message type; bit 7: patch in its fingerprint
+  switch ((data[0] & 0x7F) % 11) {  // which message type; bit 7: patch in its fingerprint
     case 0:
       Check<flexid::voltage_sample_t>("voltage_sample_t", wire::kVoltageSample, message, n, patch);
       break;
@@ -132,6 +137,9 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     case 9:
       Check<flexid::voltage_command_t>("voltage_command_t", wire::kVoltageCommand, message, n,
                                        patch);
+      break;
+    case 10:
+      Check<flexid::ownership_t>("ownership_t", wire::kOwnership, message, n, patch);
       break;
   }
   return 0;

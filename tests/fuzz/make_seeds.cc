@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <flexid/alert_t.hpp>
 #include <flexid/deflection_sample_t.hpp>
+#include <flexid/ownership_t.hpp>
 #include <flexid/prediction_t.hpp>
 #include <flexid/rpc_reply_t.hpp>
 #include <flexid/rpc_request_t.hpp>
@@ -141,6 +142,18 @@ int main(int argc, char** argv) {
   command.nonce = "0123456789abcdef";
   command.auth = std::string(64, 'b');
   WriteSeed(messages, 0x89, "voltage_command_t", command);
+  flexid::ownership_t ownership{};
+  ownership.utime = t0;
+  ownership.daemon_id = "FLEXID";
+  ownership.instance_id = "0123456789abcdef";
+  ownership.num_claims = 2;
+  ownership.actuator_ids = {"S1", "S2"};
+  ownership.claims = {flexid::ownership_t::kConfigured, flexid::ownership_t::kAdopted};
+  ownership.first_seen_utime = {0, t0 - 1000000};
+  ownership.num_peers = 1;
+  ownership.peer_ids = {"RIG2"};
+  ownership.peer_heard_utime = {t0 - 500000};
+  WriteSeed(messages, 0x8A, "ownership_t", ownership);
   flexid::rpc_request_t q{};
   q.utime = t0;
   q.request_id = "r1";
