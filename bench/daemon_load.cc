@@ -936,8 +936,9 @@ std::map<pid_t, ThreadCpu> ThreadCpuTimes() {
 // (status: voluntary ones are waits for input, involuntary ones preemptions).
 struct ThreadSched {
   std::string name;
-  int64_t cpu_ns = 0, wait_ns = 0, slices = 0, voluntary = 0, involuntary = 0;
+  int64_t cpu_ns = 0, wait_ns = 0, slices = 0, voluntary = 0, involuntary = 0, faults = 0;
   void Add(const ThreadSched& later, const ThreadSched& earlier) {
+    faults += later.faults - earlier.faults;
     cpu_ns += later.cpu_ns - earlier.cpu_ns;
     wait_ns += later.wait_ns - earlier.wait_ns;
     slices += later.slices - earlier.slices;
@@ -956,6 +957,19 @@ std::map<pid_t, ThreadSched> ThreadScheds() {
     std::getline(comm, t.name);
     std::ifstream stat(entry.path() / "schedstat");
     stat >> t.cpu_ns >> t.wait_ns >> t.slices;
+    {
+      // stat: "tid (comm) state ..." with minflt the 10th field; comm may hold spaces.
+      std::ifstream stat_file(entry.path() / "stat");
+      std::string text;
+      std::getline(stat_file, text);
+      const size_t close = text.rfind(')');
+      if (close != std::string::npos) {
+        std::istringstream fields(text.substr(close + 2));
+        std::string field;
+        for (int n = 3; n <= 10 && fields >> field; ++n)
+          if (n == 10) t.faults = std::stoll(field);
+      }
+    }
     std::ifstream status(entry.path() / "status");
     std::string line;
     while (std::getline(status, line)) {
@@ -2012,21 +2026,22 @@ int main(int argc, char** argv) {
   std::printf(
       "\n== scheduling by thread, outside (%.1f s) | during identification (%.1f s) ==\n"
       "  cpu: ms on a CPU per s; wait: ms runnable but waiting for a CPU per s, and per time "
-      "slice (us);\n  invol: preemptions per s (/proc/self/task/T/schedstat and status)\n",
+      "slice (us);\n  invol: preemptions per s; flt: minor page faults per s\n  "
+      "(/proc/self/task/T/schedstat, status and stat)\n",
       sched.outside_s_, sched.during_s_);
-  std::printf("  %-12s %-22s %7s %7s %8s %7s | %7s %7s %8s %7s\n", "thread", "", "cpu", "wait",
-              "wait/sl", "invol", "cpu", "wait", "wait/sl", "invol");
+  std::printf("  %-12s %-22s %7s %7s %8s %7s %7s | %7s %7s %8s %7s %7s\n", "thread", "", "cpu",
+              "wait", "wait/sl", "invol", "flt", "cpu", "wait", "wait/sl", "invol", "flt");
   for (const auto& [tid, out] : sched.outside_) {
     const auto it = sched.during_.find(tid);
     const ThreadSched in = it != sched.during_.end() ? it->second : ThreadSched{};
     auto figures = [](const ThreadSched& t, double s) {
       char b[64];
-      if (s <= 0) return std::string(33, ' ');
+      if (s <= 0) return std::string(41, ' ');
       std::snprintf(
-          b, sizeof b, "%7.1f %7.2f %8.1f %7.1f", 1e-6 * static_cast<double>(t.cpu_ns) / s,
+          b, sizeof b, "%7.1f %7.2f %8.1f %7.1f %7.1f", 1e-6 * static_cast<double>(t.cpu_ns) / s,
           1e-6 * static_cast<double>(t.wait_ns) / s,
           t.slices ? 1e-3 * static_cast<double>(t.wait_ns) / static_cast<double>(t.slices) : 0.0,
-          static_cast<double>(t.involuntary) / s);
+          static_cast<double>(t.involuntary) / s, static_cast<double>(t.faults) / s);
       return std::string(b);
     };
     std::string label = labels.count(tid) ? labels[tid] : "";
