@@ -62,6 +62,15 @@
 //    publish) plus one loopback hop, without this program's scheduling. It is the closest
 //    to the target's "after the deflection message arrives". The daemon's own time inside
 //    is not exposed, so nothing finer is measured.
+//  - bus floor, from the same run: 100 times a second the publisher sends a small message
+//    on the same multicast address one port up; a thread of this program with its own LCM
+//    (receive thread, a loop polling LCM's descriptor, a handler that publishes) echoes it,
+//    and the subscriber takes both kernel stamps, as for socket to socket. The summary
+//    gives the floor's p50/p99, the daemon's p50/p99/p99.9 and their ratio, outside and
+//    during identification, with the load average before and after the run.
+//  - scheduling by thread, outside and during identification: CPU, run-queue wait and
+//    preemptions of every thread (/proc/self/task/T/schedstat and status).
+#include <poll.h>
 #include <pthread.h>
 #include <sched.h>
 #include <sys/resource.h>
@@ -118,6 +127,12 @@ constexpr int64_t kBaseUtime = 1'700'000'000'000'000;  // message time of sample
 constexpr double kHighV = 5.0;  // square wave 0 / 5 V, duty 0.5, first half period at 0 V
 constexpr double kGainMmPerV = 0.35, kTauS = 0.4, kDeadTimeS = 0.05, kNoiseMm = 0.003;
 constexpr const char* kClientId = "load";
+// The bus floor: a small message echoed by a thread that does nothing else (Echo), on the
+// same multicast address one port up, so that neither the daemon nor the echo reads the
+// other's traffic.
+constexpr const char* kPingChannel = "DAEMON_LOAD_PING";
+constexpr const char* kPongChannel = "DAEMON_LOAD_PONG";
+constexpr double kPingHz = 100;  // pings per second, sent by the publisher after a tick
 
 // --- options ---------------------------------------------------------------------------
 
@@ -257,6 +272,7 @@ struct Plan {
   int64_t history = 0;  // L00's samples before t0
   double rate_hz = 0, period_s = 0;
   int64_t restart_k = -1;  // tick at which L00's trial is stopped and restarted (-1: never)
+  int64_t ping_every = 5;  // a ping (the bus floor) after every ping_every-th tick
   // Every trial stop + restart (restart_k's among them), sorted by tick: {tick, actuator}.
   std::vector<std::pair<int64_t, int>> restarts;
 
@@ -283,6 +299,7 @@ struct Plan {
   size_t Slots() const {
     return static_cast<size_t>(actuators) * static_cast<size_t>(history + samples);
   }
+  size_t Pings() const { return static_cast<size_t>(samples / ping_every + 1); }
 };
 
 std::string ActuatorId(int i) {
@@ -323,12 +340,13 @@ class Publisher {
   // L00's history is published from history_start on, history_speed times faster than
   // real time; the run's tick k at t0 + k / rate.
   // Trial control is signed with `key`, that of the daemon under test.
-  Publisher(const Plan& plan, const std::string& url, const flexid::bus::Channels& channels,
-            Clock::time_point history_start, double history_speed, Clock::time_point t0,
-            const flexid::auth::Key& key)
+  Publisher(const Plan& plan, const std::string& url, const std::string& floor_url,
+            const flexid::bus::Channels& channels, Clock::time_point history_start,
+            double history_speed, Clock::time_point t0, const flexid::auth::Key& key)
       : plan_(plan),
         key_(key),
         lcm_(url),
+        floor_lcm_(floor_url),
         history_start_(history_start),
         history_speed_(history_speed),
         t0_(t0),
@@ -343,7 +361,7 @@ class Publisher {
     report_.late_by_s.assign(
         static_cast<size_t>(static_cast<double>(plan.samples) / plan.rate_hz) + 2, 0);
   }
-  bool good() { return lcm_.good(); }
+  bool good() { return lcm_.good() && floor_lcm_.good(); }
 
   void Run() {
     NameThread("bench-pub");
@@ -382,6 +400,7 @@ class Publisher {
         Control(a, flexid::bus::TrialAction::kStart, plan_.Utime(k), "daemon_load next trial");
       }
       for (int i = 0; i < plan_.actuators; ++i) PublishSample(i, k);
+      if (k % plan_.ping_every == 0) Ping(k / plan_.ping_every);
       report_.max_tick_ns = std::max(report_.max_tick_ns, Since(start, Clock::now()));
       ++report_.ticks;
     }
@@ -416,6 +435,15 @@ class Publisher {
     if (!actuators_[s].PublishDeflection(utime, deflection_mm)) ++report_.publish_failures;
   }
 
+  // The bus floor's ping: sequence number and publish time (steady ns since t0).
+  void Ping(int64_t seq) {
+    flexid::deflection_sample_t ping;
+    ping.utime = Since(t0_, Clock::now());
+    ping.actuator_id = "PING";
+    ping.deflection_mm = static_cast<double>(seq);
+    if (floor_lcm_.publish(kPingChannel, &ping) != 0) ++report_.publish_failures;
+  }
+
   void Control(int actuator, flexid::bus::TrialAction action, int64_t utime,
                const std::string& protocol) {
     if (!actuators_[static_cast<size_t>(actuator)].PublishTrialControl(utime, action, protocol))
@@ -425,6 +453,7 @@ class Publisher {
   const Plan plan_;
   const flexid::auth::Key key_;
   lcm::LCM lcm_;
+  lcm::LCM floor_lcm_;  // pings only (publishes; no receive thread)
   const Clock::time_point history_start_;
   const double history_speed_;
   const Clock::time_point t0_;
@@ -495,14 +524,58 @@ class Histogram {
 
 // What the subscriber's handler measured in one sample window, split by whether the
 // deflection was published while an identify request was outstanding.
+// floor: the echo of a ping (the bus floor), socket to socket like s2s.
 struct LiveLatency {
-  Histogram ext_in, ext_out, s2s_in, s2s_out;
+  Histogram ext_in, ext_out, s2s_in, s2s_out, floor_in, floor_out;
   void Merge(const LiveLatency& o) {
     ext_in.Merge(o.ext_in);
     ext_out.Merge(o.ext_out);
     s2s_in.Merge(o.s2s_in);
     s2s_out.Merge(o.s2s_out);
+    floor_in.Merge(o.floor_in);
+    floor_out.Merge(o.floor_out);
   }
+};
+
+// --- the bus floor: an echo --------------------------------------------------------------
+
+// Echoes every ping as a pong, on a thread and an LCM instance of its own, as the daemon
+// handles a deflection (LCM's receive thread, a loop polling LCM's descriptor, a handler
+// that publishes) but with no work in between: the round trip of a small message on the
+// same machine at the same moment, the floor under the daemon's figure.
+class Echo {
+ public:
+  explicit Echo(const std::string& url) : url_(url) {}
+  bool Start() {
+    std::promise<bool> ready;
+    auto future = ready.get_future();
+    thread_ = std::thread([this, &ready] {
+      NameThread("bench-echo");  // LCM's receive thread inherits the name
+      lcm::LCM lcm(url_);
+      if (!lcm.good()) {
+        ready.set_value(false);
+        return;
+      }
+      lcm.subscribeFunction(flexid::bus::Exactly(kPingChannel), &Echo::OnPing, &lcm)
+          ->setQueueCapacity(1000);
+      ready.set_value(true);
+      while (!stop_) lcm.handleTimeout(20);
+    });
+    return future.get();
+  }
+  void Stop() {
+    stop_ = true;
+    if (thread_.joinable()) thread_.join();
+  }
+  ~Echo() { Stop(); }
+
+ private:
+  static void OnPing(const lcm::ReceiveBuffer* rbuf, const std::string&, lcm::LCM* lcm) {
+    lcm->publish(kPongChannel, rbuf->data, rbuf->data_size);
+  }
+  const std::string url_;
+  std::thread thread_;
+  std::atomic<bool> stop_{false};
 };
 
 // --- subscriber ------------------------------------------------------------------------
@@ -511,16 +584,18 @@ using ReplyRecord = flexid::bus::RpcReply;
 
 class Subscriber {
  public:
-  Subscriber(const Plan& plan, const std::string& url, const flexid::bus::Channels& channels,
-             bool tap_deflections)
+  Subscriber(const Plan& plan, const std::string& url, const std::string& floor_url,
+             const flexid::bus::Channels& channels, bool tap_deflections)
       : plan_(plan),
         url_(url),
+        floor_url_(floor_url),
         channels_(channels),
         tap_(tap_deflections),
         prediction_rx_ns_(plan.Slots(), kUnset),
         prediction_kernel_us_(plan.Slots(), kUnset),
         deflection_kernel_us_(plan.Slots(), kUnset),
-        model_version_(plan.Slots(), -1) {}
+        model_version_(plan.Slots(), -1),
+        ping_kernel_us_(plan.Pings(), kUnset) {}
 
   // The daemon's key, for the requests that change data; before the first Call().
   void SetKey(const flexid::auth::Key& key) { key_ = key; }
@@ -574,6 +649,11 @@ class Subscriber {
     return rpc_->Call(method, args.dump(), timeout);
   }
 
+  // The bus floor over the whole run, outside and during identification (after Stop()).
+  const Histogram& floor_out() const { return floor_run_.floor_out; }
+  const Histogram& floor_in() const { return floor_run_.floor_in; }
+  int64_t pongs_unmatched() const { return pongs_unmatched_; }
+
   int64_t received() const { return received_; }
   int64_t unmatched() const { return unmatched_; }
   int64_t duplicates() const { return duplicates_; }
@@ -587,7 +667,8 @@ class Subscriber {
     NameThread("bench-sub");  // LCM's receive thread, created below, inherits the name
     tid_ = ThreadId();
     lcm_ = std::make_unique<lcm::LCM>(url_);
-    if (!lcm_->good()) {
+    floor_lcm_ = std::make_unique<lcm::LCM>(floor_url_);
+    if (!lcm_->good() || !floor_lcm_->good()) {
       ready->set_value(false);
       return;
     }
@@ -600,8 +681,17 @@ class Subscriber {
                                                     flexid::bus::RpcClient::Dispatch::kElsewhere);
     lcm_->subscribeFunction(flexid::bus::Exactly(channels_.Status()), &Subscriber::OnStatus, this)
         ->setQueueCapacity(10);
+    floor_lcm_->subscribeFunction(flexid::bus::Exactly(kPingChannel), &Subscriber::OnPing, this)
+        ->setQueueCapacity(1000);
+    floor_lcm_->subscribeFunction(flexid::bus::Exactly(kPongChannel), &Subscriber::OnPong, this)
+        ->setQueueCapacity(1000);
     ready->set_value(true);
-    while (!stop_) lcm_->handleTimeout(10);
+    while (!stop_) {
+      pollfd fds[2] = {{lcm_->getFileno(), POLLIN, 0}, {floor_lcm_->getFileno(), POLLIN, 0}};
+      if (poll(fds, 2, 10) <= 0) continue;
+      if (fds[0].revents & POLLIN) lcm_->handleTimeout(0);
+      if (fds[1].revents & POLLIN) floor_lcm_->handleTimeout(0);
+    }
   }
 
   static void OnPrediction(const lcm::ReceiveBuffer* rbuf, const std::string&, Subscriber* self) {
@@ -637,6 +727,31 @@ class Subscriber {
           .Add(static_cast<double>(rbuf->recv_utime - dk));
   }
 
+  // The ping's kernel stamp on this program's socket (also when it reached the echo's).
+  static void OnPing(const lcm::ReceiveBuffer* rbuf, const std::string&, Subscriber* self) {
+    flexid::deflection_sample_t ping;
+    if (ping.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) <= 0) return;
+    const auto seq = static_cast<size_t>(ping.deflection_mm);
+    if (seq < self->ping_kernel_us_.size()) self->ping_kernel_us_[seq] = rbuf->recv_utime;
+  }
+
+  static void OnPong(const lcm::ReceiveBuffer* rbuf, const std::string&, Subscriber* self) {
+    flexid::deflection_sample_t pong;
+    if (pong.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) <= 0) return;
+    const auto seq = static_cast<size_t>(pong.deflection_mm);
+    if (seq >= self->ping_kernel_us_.size() || self->ping_kernel_us_[seq] == kUnset) {
+      ++self->pongs_unmatched_;
+      return;
+    }
+    const int64_t pub = pong.utime;  // steady ns since t0 when the ping was published
+    const int64_t sent = self->ident_sent_ns_.load(), end = self->ident_end_ns_.load();
+    const bool in = sent != kUnset && pub >= sent && pub <= end;
+    const auto us = static_cast<double>(rbuf->recv_utime - self->ping_kernel_us_[seq]);
+    std::lock_guard lock(self->live_mutex_);
+    (in ? self->live_.floor_in : self->live_.floor_out).Add(us);
+    (in ? self->floor_run_.floor_in : self->floor_run_.floor_out).Add(us);
+  }
+
   static void OnStatus(const lcm::ReceiveBuffer* rbuf, const std::string&, Subscriber* self) {
     flexid::status_t st;
     if (st.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) <= 0) return;
@@ -653,12 +768,13 @@ class Subscriber {
   }
 
   const Plan plan_;
-  const std::string url_;
+  const std::string url_, floor_url_;
   const flexid::bus::Channels channels_;
   const bool tap_;
   flexid::auth::Key key_;  // SetKey()
   std::atomic<Clock::rep> t0_ns_{0};
   std::unique_ptr<lcm::LCM> lcm_;
+  std::unique_ptr<lcm::LCM> floor_lcm_;          // the bus floor's pings and pongs
   std::unique_ptr<flexid::bus::RpcClient> rpc_;  // on lcm_, replies handled by Run()
   std::thread thread_;
   std::atomic<bool> stop_{false};
@@ -669,11 +785,14 @@ class Subscriber {
   std::vector<int64_t> prediction_kernel_us_;  // SO_TIMESTAMP of the prediction, us
   std::vector<int64_t> deflection_kernel_us_;  // SO_TIMESTAMP of the deflection, us
   std::vector<int32_t> model_version_;
+  std::vector<int64_t> ping_kernel_us_;  // SO_TIMESTAMP of each ping, us
+  int64_t pongs_unmatched_ = 0;
   // Live figures, shared with the soak's sampler.
   const std::vector<std::atomic<int64_t>>* live_publish_ns_ = nullptr;
   std::atomic<int64_t> ident_sent_ns_{kUnset}, ident_end_ns_{kUnset};
   std::mutex live_mutex_;
   LiveLatency live_;
+  LiveLatency floor_run_;  // only the floor, over the whole run
   std::optional<flexid::status_t> status_;
 };
 
@@ -810,6 +929,95 @@ std::map<pid_t, ThreadCpu> ThreadCpuTimes() {
     out[tid] = t;
   }
   return out;
+}
+
+// What the scheduler did with one thread: CPU time, time spent runnable but waiting for
+// a CPU (/proc/self/task/T/schedstat: run-queue wait), time slices, and context switches
+// (status: voluntary ones are waits for input, involuntary ones preemptions).
+struct ThreadSched {
+  std::string name;
+  int64_t cpu_ns = 0, wait_ns = 0, slices = 0, voluntary = 0, involuntary = 0, faults = 0;
+  void Add(const ThreadSched& later, const ThreadSched& earlier) {
+    faults += later.faults - earlier.faults;
+    cpu_ns += later.cpu_ns - earlier.cpu_ns;
+    wait_ns += later.wait_ns - earlier.wait_ns;
+    slices += later.slices - earlier.slices;
+    voluntary += later.voluntary - earlier.voluntary;
+    involuntary += later.involuntary - earlier.involuntary;
+  }
+};
+
+std::map<pid_t, ThreadSched> ThreadScheds() {
+  std::map<pid_t, ThreadSched> out;
+  std::error_code ec;
+  for (const auto& entry : fs::directory_iterator("/proc/self/task", ec)) {
+    const pid_t tid = static_cast<pid_t>(std::stol(entry.path().filename().string()));
+    ThreadSched t;
+    std::ifstream comm(entry.path() / "comm");
+    std::getline(comm, t.name);
+    std::ifstream stat(entry.path() / "schedstat");
+    stat >> t.cpu_ns >> t.wait_ns >> t.slices;
+    {
+      // stat: "tid (comm) state ..." with minflt the 10th field; comm may hold spaces.
+      std::ifstream stat_file(entry.path() / "stat");
+      std::string text;
+      std::getline(stat_file, text);
+      const size_t close = text.rfind(')');
+      if (close != std::string::npos) {
+        std::istringstream fields(text.substr(close + 2));
+        std::string field;
+        for (int n = 3; n <= 10 && fields >> field; ++n)
+          if (n == 10) t.faults = std::stoll(field);
+      }
+    }
+    std::ifstream status(entry.path() / "status");
+    std::string line;
+    while (std::getline(status, line)) {
+      if (line.rfind("voluntary_ctxt_switches:", 0) == 0) t.voluntary = std::stoll(line.substr(24));
+      if (line.rfind("nonvoluntary_ctxt_switches:", 0) == 0)
+        t.involuntary = std::stoll(line.substr(27));
+    }
+    out[tid] = t;
+  }
+  return out;
+}
+
+// The threads' scheduling split into time outside and during identification: Mark() at
+// each change, the difference since the last mark goes to the phase that ended.
+class SchedSplit {
+ public:
+  void Start() {
+    last_ = ThreadScheds();
+    last_at_ = Clock::now();
+  }
+  void Mark(bool ended_identification) {
+    const auto now = ThreadScheds();
+    const Clock::time_point at = Clock::now();
+    auto& phase = ended_identification ? during_ : outside_;
+    (ended_identification ? during_s_ : outside_s_) +=
+        1e-9 * static_cast<double>(Since(last_at_, at));
+    for (const auto& [tid, t] : now) {
+      ThreadSched& sum = phase[tid];
+      sum.name = t.name;
+      const auto it = last_.find(tid);
+      sum.Add(t, it != last_.end() ? it->second : ThreadSched{});
+    }
+    last_ = now;
+    last_at_ = at;
+  }
+  std::map<pid_t, ThreadSched> outside_, during_;
+  double outside_s_ = 0, during_s_ = 0;
+
+ private:
+  std::map<pid_t, ThreadSched> last_;
+  Clock::time_point last_at_;
+};
+
+std::string LoadAverage() {
+  std::ifstream in("/proc/loadavg");
+  std::string one, five, fifteen;
+  in >> one >> five >> fifteen;
+  return one + " " + five + " " + fifteen;
 }
 
 // Busy and steal time of the whole machine, in USER_HZ ticks (/proc/stat, line "cpu").
@@ -949,6 +1157,50 @@ Stats FromHistogram(const Histogram& h) {
   s.max = h.max();
   s.over_1ms = h.over_1ms();
   return s;
+}
+
+std::string Ratio(double daemon_us, double floor_us) {
+  if (!std::isfinite(daemon_us) || !std::isfinite(floor_us) || floor_us <= 0) return "-";
+  char b[32];
+  std::snprintf(b, sizeof b, "%.1fx", daemon_us / floor_us);
+  return b;
+}
+
+// The figures of the README's table, from one run: the bus floor (a ping's echo) and the
+// daemon (a deflection's prediction), both socket to socket, outside and during
+// identification, their ratio, and the load average before and after.
+void PrintTableFigures(const Stats& daemon_out, const Stats& daemon_in, const Histogram& floor_out,
+                       const Histogram& floor_in, const std::string& load_start,
+                       const std::string& load_end, bool identify) {
+  std::printf(
+      "\n== summary: bus floor and daemon, socket to socket (ms) ==   target: daemon p99 < 1 "
+      "ms, also during identification\n");
+  std::printf("  load average (1, 5, 15 min): %s before, %s after\n", load_start.c_str(),
+              load_end.c_str());
+  std::printf("  %-34s %8s %8s %8s %8s %8s %9s %8s\n", "", "n", "p50", "p90", "p99", "p99.9", "max",
+              ">1ms");
+  const Stats fo = FromHistogram(floor_out), fi = FromHistogram(floor_in);
+  PrintStatsRow("bus floor, outside identification", fo);
+  if (identify) PrintStatsRow("bus floor, during identification", fi);
+  PrintStatsRow("daemon, outside identification", daemon_out);
+  if (identify) PrintStatsRow("daemon, during identification", daemon_in);
+  std::printf("  ratio daemon / floor: outside p50 %s, p99 %s",
+              Ratio(daemon_out.p50, fo.p50).c_str(), Ratio(daemon_out.p99, fo.p99).c_str());
+  if (identify)
+    std::printf("; during p50 %s, p99 %s", Ratio(daemon_in.p50, fi.p50).c_str(),
+                Ratio(daemon_in.p99, fi.p99).c_str());
+  const bool met = daemon_out.p99 < 1000 && (!identify || daemon_in.n == 0 || daemon_in.p99 < 1000);
+  std::printf("\n  daemon p99 < 1 ms outside%s: %s\n", identify ? " and during identification" : "",
+              met ? "met" : "NOT MET");
+  // One line with every figure, for a table.
+  std::printf(
+      "  table: load %s | floor p50/p99 %s/%s | outside p50/p99/p99.9 %s/%s/%s | during "
+      "p50/p99/p99.9 %s/%s/%s | floor during p50/p99 %s/%s | p99 ratio %s / %s\n",
+      load_start.substr(0, load_start.find(' ')).c_str(), Ms(fo.p50).c_str(), Ms(fo.p99).c_str(),
+      Ms(daemon_out.p50).c_str(), Ms(daemon_out.p99).c_str(), Ms(daemon_out.p999).c_str(),
+      Ms(daemon_in.p50).c_str(), Ms(daemon_in.p99).c_str(), Ms(daemon_in.p999).c_str(),
+      Ms(fi.p50).c_str(), Ms(fi.p99).c_str(), Ratio(daemon_out.p99, fo.p99).c_str(),
+      Ratio(daemon_in.p99, fi.p99).c_str());
 }
 
 // From t0 until stopped: polls memory and backlogs every 50 ms and, every `every` seconds
@@ -1148,12 +1400,15 @@ int main(int argc, char** argv) {
   const Options opt = ParseOptions(argc, argv);
   std::printf("daemon_load: flexidd under load, in process, real LCM (udpm) and SQLite\n");
   std::printf("command: %s\n", Join(argc, argv).c_str());
+  const std::string load_at_start = LoadAverage();
+  std::printf("load average at start (1, 5, 15 min): %s\n", load_at_start.c_str());
 
   Plan plan;
   plan.actuators = opt.actuators;
   plan.rate_hz = opt.rate_hz;
   plan.period_s = opt.period_s;
   plan.samples = static_cast<int64_t>(std::llround(opt.seconds * opt.rate_hz));
+  plan.ping_every = std::max<int64_t>(1, std::llround(opt.rate_hz / kPingHz));
   const bool soak = opt.identify_every > 0 || opt.sample_every_given;
   const bool identify = opt.identify_at > 0 || opt.identify_every > 0;
   std::vector<std::pair<double, int>> schedule;  // identifications: {t in s, actuator}
@@ -1182,7 +1437,11 @@ int main(int argc, char** argv) {
   std::random_device device;
   const int port = std::uniform_int_distribution<int>(20000, 60000)(device);
   std::string url = "udpm://239.255.76.67:" + std::to_string(port) + "?ttl=0";
-  if (opt.recv_buf_size > 0) url = flexid::bus::WithReceiveBuffer(url, opt.recv_buf_size);
+  std::string floor_url = "udpm://239.255.76.67:" + std::to_string(port + 1) + "?ttl=0";
+  if (opt.recv_buf_size > 0) {
+    url = flexid::bus::WithReceiveBuffer(url, opt.recv_buf_size);
+    floor_url = flexid::bus::WithReceiveBuffer(floor_url, opt.recv_buf_size);
+  }
   const flexid::bus::Channels channels(opt.channel_prefix);
 
   char dir_template[] = "/tmp/daemon_load.XXXXXX";
@@ -1219,9 +1478,14 @@ int main(int argc, char** argv) {
       opt.seconds, kHighV, opt.period_s);
 
   // The subscriber first, so that its socket can be told from the daemon's.
-  Subscriber subscriber(plan, url, channels, opt.tap_deflections);
+  Subscriber subscriber(plan, url, floor_url, channels, opt.tap_deflections);
   if (!subscriber.Start()) {
     std::fprintf(stderr, "daemon_load: cannot join the LCM bus at %s\n", url.c_str());
+    return 1;
+  }
+  Echo echo(floor_url);
+  if (!echo.Start()) {
+    std::fprintf(stderr, "daemon_load: the echo cannot join the LCM bus at %s\n", url.c_str());
     return 1;
   }
   const auto sockets_before = UdpSockets(port);
@@ -1278,7 +1542,7 @@ int main(int argc, char** argv) {
     return 1;
   }
   subscriber.SetKey(key);
-  Publisher publisher(plan, url, channels, history_start, opt.history_speed, t0, key);
+  Publisher publisher(plan, url, floor_url, channels, history_start, opt.history_speed, t0, key);
   if (!publisher.good()) {
     std::fprintf(stderr, "daemon_load: the publisher cannot join the bus\n");
     subscriber.Stop();
@@ -1312,6 +1576,8 @@ int main(int argc, char** argv) {
   const MachineCpu machine_start = ReadMachineCpu();
   LoadMonitor monitor;
   monitor.Start(t0, static_cast<size_t>(std::ceil(opt.seconds)));
+  SchedSplit sched;
+  sched.Start();
 
   std::optional<SoakSampler> sampler;
   if (soak) {
@@ -1330,11 +1596,13 @@ int main(int argc, char** argv) {
     std::this_thread::sleep_until(t0 + std::chrono::nanoseconds(std::llround(at * 1e9)));
     Identification id;
     id.actuator = a;
+    sched.Mark(false);
     subscriber.IdentificationStarted(Since(t0, Clock::now()));
     if (sampler) sampler->IdentificationRunning(true);
     id.reply = subscriber.Call("identify", {{"actuator", ActuatorId(a)}, {"latest", 1}},
                                std::chrono::seconds(120), &id.sent);
     subscriber.IdentificationEnded(Since(t0, id.reply ? id.reply->received : Clock::now()));
+    sched.Mark(true);
     if (sampler) {
       sampler->IdentificationRunning(false);
       const double sent_s = 1e-9 * static_cast<double>(Since(t0, id.sent));
@@ -1351,6 +1619,7 @@ int main(int argc, char** argv) {
     identifications.push_back(std::move(id));
   }
   publisher_thread.join();
+  sched.Mark(false);
   const MachineCpu machine_end = ReadMachineCpu();
   monitor.Stop();
   if (sampler) sampler->Stop();
@@ -1613,6 +1882,18 @@ int main(int argc, char** argv) {
         "and of the prediction: the daemon (LCM receive thread, queue, loop, handler, "
         "publish) + one hop.\n");
 
+  const std::string load_at_end = LoadAverage();
+  if (opt.tap_deflections) {
+    PrintTableFigures(Summarise(identify ? s2s_out : s2s_all), Summarise(s2s_in),
+                      subscriber.floor_out(), subscriber.floor_in(), load_at_start, load_at_end,
+                      identify);
+    std::printf(
+        "  bus floor: a small message (%g/s, one port up) echoed by a thread of this program with "
+        "its own LCM\n  (receive thread, loop, publish), kernel stamps as above; unmatched "
+        "echoes %" PRId64 "\n",
+        kPingHz, subscriber.pongs_unmatched());
+  }
+
   std::printf("\n== identification ==\n");
   if (!identify) std::printf("  off\n");
   for (const Identification& id : identifications) {
@@ -1741,6 +2022,34 @@ int main(int argc, char** argv) {
   }
   std::printf("  %-14s %-22s %-11s %7.3f\n", "bench-pub", "publisher", "",
               1e-9 * static_cast<double>(pr.cpu_ns));
+
+  std::printf(
+      "\n== scheduling by thread, outside (%.1f s) | during identification (%.1f s) ==\n"
+      "  cpu: ms on a CPU per s; wait: ms runnable but waiting for a CPU per s, and per time "
+      "slice (us);\n  invol: preemptions per s; flt: minor page faults per s\n  "
+      "(/proc/self/task/T/schedstat, status and stat)\n",
+      sched.outside_s_, sched.during_s_);
+  std::printf("  %-12s %-22s %7s %7s %8s %7s %7s | %7s %7s %8s %7s %7s\n", "thread", "", "cpu",
+              "wait", "wait/sl", "invol", "flt", "cpu", "wait", "wait/sl", "invol", "flt");
+  for (const auto& [tid, out] : sched.outside_) {
+    const auto it = sched.during_.find(tid);
+    const ThreadSched in = it != sched.during_.end() ? it->second : ThreadSched{};
+    auto figures = [](const ThreadSched& t, double s) {
+      char b[64];
+      if (s <= 0) return std::string(41, ' ');
+      std::snprintf(
+          b, sizeof b, "%7.1f %7.2f %8.1f %7.1f %7.1f", 1e-6 * static_cast<double>(t.cpu_ns) / s,
+          1e-6 * static_cast<double>(t.wait_ns) / s,
+          t.slices ? 1e-3 * static_cast<double>(t.wait_ns) / static_cast<double>(t.slices) : 0.0,
+          static_cast<double>(t.involuntary) / s, static_cast<double>(t.faults) / s);
+      return std::string(b);
+    };
+    std::string label = labels.count(tid) ? labels[tid] : "";
+    if (out.name == "bench-pub") label = "publisher";
+    if (out.name == "bench-echo") label = "bus floor echo";
+    std::printf("  %-12s %-22s %s | %s\n", out.name.c_str(), label.c_str(),
+                figures(out, sched.outside_s_).c_str(), figures(in, sched.during_s_).c_str());
+  }
 
   std::printf("\n== trials in the database ==\n");
   std::printf("  %5s %-4s %-10s %8s   published deflections in its span\n", "id", "act.", "state",
@@ -1884,6 +2193,9 @@ int main(int argc, char** argv) {
     PrintStatsRow("external, all", FromHistogram(ext_all_h));
     PrintStatsRow("external, outside identification", FromHistogram(total.ext_out));
     PrintStatsRow("external, during identification", FromHistogram(total.ext_in));
+    if (opt.tap_deflections)
+      PrintTableFigures(FromHistogram(total.s2s_out), FromHistogram(total.s2s_in), total.floor_out,
+                        total.floor_in, load_at_start, load_at_end, true);
 
     // Identifications.
     std::vector<double> durations_ms;
