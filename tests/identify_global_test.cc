@@ -238,6 +238,38 @@ TEST(IdentifyGlobal, RulesAtMostLimitsTheRules) {
   EXPECT_LE(limited.structure.knots_V.size(), 2u) << limited.reason;
 }
 
+// Raising an estimate's orders keeps every other choice, fits about as well in sample
+// (the raised structure holds the estimate, though its start is not exact) and costs a
+// few fits, not a selection.
+TEST(IdentifyGlobal, RaisedOrderKeepsTheStructureAndFitsNoWorse) {
+  const Recording rec = Staircase("raise.csv", 12);
+  const GlobalEstimate base = IdentifyGlobalTs({rec});
+  ASSERT_FALSE(base.theta.empty());
+  GlobalIdentifyOptions options;
+  options.raise_order_of = &base;
+  const GlobalEstimate raised = IdentifyGlobalTs({rec}, options);
+  EXPECT_EQ(raised.structure.num_poles, base.structure.num_poles + 1);
+  EXPECT_EQ(raised.structure.num_zeros, base.structure.num_zeros + 1);
+  EXPECT_EQ(raised.structure.knots_V, base.structure.knots_V);
+  EXPECT_EQ(raised.structure.dynamics_knots_V, base.structure.dynamics_knots_V);
+  EXPECT_EQ(raised.structure.premise, base.structure.premise);
+  EXPECT_EQ(raised.structure.realisation, base.structure.realisation);
+  EXPECT_DOUBLE_EQ(raised.delay_s.value, base.delay_s.value);
+  EXPECT_LE(raised.fit.rmse_mm, base.fit.rmse_mm * 1.02);
+  EXPECT_LE(raised.fits, 4);
+  EXPECT_LT(raised.fits, base.fits);
+  EXPECT_NE(raised.reason.find("raised by one pole and one zero"), std::string::npos)
+      << raised.reason;
+
+  // An estimate without parameters, or already at six poles, cannot be raised.
+  GlobalEstimate empty;
+  options.raise_order_of = &empty;
+  std::string why;
+  EXPECT_FALSE(options.IsValid(&why));
+  EXPECT_NE(why.find("raise_order_of"), std::string::npos) << why;
+  EXPECT_THROW(IdentifyGlobalTs({rec}, options), std::invalid_argument);
+}
+
 // The physics chain's prior: with max_fall_back, no chosen rule falls back further, where
 // a free fit of a relaxing plant (a slow zero under its slow pole) does.
 TEST(IdentifyGlobal, MaxFallBackKeepsTheStepResponseFromFallingBack) {

@@ -509,7 +509,8 @@ std::vector<TimeSpan> OnRecordings(const Data& data, const std::vector<TimeSpan>
   return out;
 }
 
-GlobalEstimate IdentifyBaseline(const Recording& rec, const Data& data, Diagnosis* result) {
+GlobalEstimate IdentifyBaseline(const Recording& rec, const Data& data, Diagnosis* result,
+                                const GlobalEstimate* higher_than) {
   const size_t n = rec.t_s.size();
   // The held-out deflection never reaches the identification: the samples there are
   // excluded from every fit (they are simulated through, so the state carries over) and
@@ -534,7 +535,11 @@ GlobalEstimate IdentifyBaseline(const Recording& rec, const Data& data, Diagnosi
   identify.rules_at_most = 2;
   // The physics chain's step response cannot fall back (Eqs. 11-13): a baseline that
   // does has absorbed back-relaxation, and the effect is then never seen.
-  identify.max_fall_back = kBaselineFallBack;
+  identify.max_fall_back = higher_than ? 0.0 : kBaselineFallBack;
+  // One more pole and zero than the baseline, everything else kept and its dead time
+  // fixed: the question is the slow dynamics, and one fit from where the baseline ended
+  // answers it (a second selection would cost as much as the first).
+  identify.raise_order_of = higher_than;
   for (const TimeSpan& s : result->heldout)
     identify.excluded_spans_s.emplace_back(s.t_start_s, s.t_end_s + 0.5 * data.dt_s);
   std::vector<Recording> parts;
@@ -554,6 +559,7 @@ GlobalEstimate IdentifyBaseline(const Recording& rec, const Data& data, Diagnosi
   } catch (const InputError& e) {
     throw InputError(std::string("no baseline could be identified: ") + e.what());
   }
+  if (higher_than) return estimate;
   result->notes.push_back("baseline: " + estimate.structure.Describe() + " (" + estimate.reason +
                           ")");
   for (const std::string& w : estimate.warnings) result->notes.push_back("baseline: " + w);

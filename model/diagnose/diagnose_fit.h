@@ -151,7 +151,11 @@ constexpr double kBaselineFallBack = 0.01;
 // Without a trusted model: the whole T-S model identified on the training samples by the
 // global fit (identify_global.h, the path `flexid identify` and flexidd take), its
 // structure chosen on held-out blocks of the training samples. Notes go to result->notes.
-GlobalEstimate IdentifyBaseline(const Recording& rec, const Data& data, Diagnosis* result);
+// `higher_than`: a baseline already identified; its structure with one more pole and zero,
+// premise, realisation and dead time as chosen (for the back-relaxation test below); notes
+// are then not added.
+GlobalEstimate IdentifyBaseline(const Recording& rec, const Data& data, Diagnosis* result,
+                                const GlobalEstimate* higher_than = nullptr);
 
 // The recordings laid end to end, in the order given, as one: recording j > 0 starts one
 // sample period (its predecessor's last) after its predecessor ends. *starts receives the

@@ -75,6 +75,7 @@ void GlobalSearch::FinalFit() {
   result.model = layout.Model(final_fit.theta.data(), problem.rest_band_V);
   result.model.scheduling_delay_s = final_fit.theta[0];
   result.fits = selector->fits();
+  result.theta = final_fit.theta;
   const double fastest = FastestFrozenPole(result.model, current.knots_V.back());
   if (!(fastest < M_PI / problem.dt_s))
     throw InputError("the fitted model has a pole beyond the Nyquist frequency (" + Volts(fastest) +
@@ -174,10 +175,12 @@ void GlobalSearch::Intervals() {
 
 // What the data cannot decide, in words.
 void GlobalSearch::Explain() {
-  result.reason = "chosen on held-out data (" +
-                  std::string(problem.series.size() >= 2 ? "leave one recording out"
-                                                         : "first and second half in turn") +
-                  "): " + current.Describe();
+  result.reason =
+      raising ? std::string("not chosen")
+              : "chosen on held-out data (" +
+                    std::string(problem.series.size() >= 2 ? "leave one recording out"
+                                                           : "first and second half in turn") +
+                    "): " + current.Describe();
   for (const std::string& r : reasons) result.reason += "; " + r;
   if (!result.undetermined.empty()) {
     std::string names;

@@ -126,13 +126,13 @@ std::vector<double> RuleParameters(const TransferFunction& tf, const Layout& lay
 
 // theta for `to` (one pole and one zero more than `from`, same knots) close to what
 // `from` predicts: the dynamics at every dynamics knot gain a pole and a zero at the same
-// fast frequency (a quarter of the band's top), which cancel at the knots. Not exactly
+// frequency `a` (rad/s; fast unless given), which cancel at the knots. Not exactly
 // between them: the real roots are paired into quadratic factors by size (RealFactors),
 // the new root can pair differently at two knots, and the factors interpolate linearly
 // (measured on a 2-4 V staircase: in-sample RMSE 0.3 % above the lower order's after the
-// fit from the fast pair).
+// fit from the fast pair, and the slow pairs start far off).
 std::vector<double> RaiseOrder(const Layout& from, const std::vector<double>& theta,
-                               const Layout& to, const Problem& problem);
+                               const Layout& to, const Problem& problem, double a = 0.0);
 
 // ---------------------------------------------------------------------------------------
 // Simulation and the output-error fit

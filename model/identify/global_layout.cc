@@ -253,9 +253,9 @@ std::vector<double> RuleParameters(const TransferFunction& tf, const Layout& lay
 }
 
 std::vector<double> RaiseOrder(const Layout& from, const std::vector<double>& theta,
-                               const Layout& to, const Problem& problem) {
+                               const Layout& to, const Problem& problem, double a) {
   std::vector<double> out(theta.begin(), theta.begin() + 1 + from.Rules());
-  const double a = problem.w_max / 4;
+  if (!(a > 0.0)) a = problem.w_max / 4;
   for (double v : to.s.dynamics_knots_V) {
     TransferFunction tf = from.RuleAt(theta.data(), v, 1.0);
     tf.num = MultiplyPolynomials(tf.num, {1.0 / a, 1.0});

@@ -19,11 +19,13 @@
 namespace flexid::model::global_fit {
 
 struct GlobalSearch {
-  // Throws InputError when there are no recordings.
+  // Raising an estimate's orders (header): its choices are fixed, the dead time
+  // with them. Throws InputError when there are no recordings.
   GlobalSearch(const std::vector<Recording> &data, const GlobalIdentifyOptions &given);
 
   const std::vector<Recording> &recordings;
-  GlobalIdentifyOptions options;
+  const GlobalEstimate *const raising;  // GlobalIdentifyOptions::raise_order_of
+  GlobalIdentifyOptions options;        // as given, or as raising fixes them
   GlobalEstimate result;
   Problem problem;            // the data the structure is chosen on (every factor-th sample)
   Mask usable;                // the samples a fit may use
@@ -53,6 +55,7 @@ struct GlobalSearch {
   void RunStage(const std::string &stage, const std::vector<GlobalStructure> &candidates,
                 const std::vector<std::vector<std::vector<double>>> &starts,
                 const std::vector<bool> &also_screened = {});
+  void Raise();
   void Select();
   void SplitDynamics();
   void ChooseRealisation();

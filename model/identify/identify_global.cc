@@ -62,7 +62,15 @@ void CheckSeries(const Series& s) {
 }  // namespace
 
 GlobalSearch::GlobalSearch(const std::vector<Recording>& data, const GlobalIdentifyOptions& given)
-    : recordings(data), options(given) {
+    : recordings(data), raising(given.raise_order_of), options(given) {
+  if (raising) {
+    options.num_zeros = raising->structure.num_zeros + 1;
+    options.num_poles = raising->structure.num_poles + 1;
+    options.premise = raising->structure.premise;
+    options.realisation = raising->structure.realisation;
+    options.fixed_delay_s = raising->theta[0];
+    options.max_selection_factor = 1;
+  }
   if (recordings.empty()) throw InputError("no recordings to identify from");
 }
 
@@ -221,6 +229,38 @@ void GlobalSearch::RunStage(const std::string& stage,
     text.pop_back();
     reasons.push_back(text);
   }
+}
+
+// Raising (GlobalIdentifyOptions::raise_order_of): the estimate's structure with one more
+// pole and zero, fitted from it with a cancelling pair added; no selection.
+void GlobalSearch::Raise() {
+  GlobalStructure raised = raising->structure;
+  raised.num_zeros = options.num_zeros;
+  raised.num_poles = options.num_poles;
+  current = raised;
+  // The cancelling pair placed fast, and slow at a thirtieth, a tenth and a third of the
+  // longest recording: from the fast pair alone the fit stays near the lower order
+  // and does not find a slow pole-zero pair (a fall-back over the holds).
+  double least = kInf;
+  std::string failure;
+  for (const double a : {problem.w_max / 4, 30 / longest_s, 10 / longest_s, 3 / longest_s}) {
+    try {
+      FitResult fit = Fit(problem, Layout{raised, problem.w_min}, usable,
+                          RaiseOrder(Layout{raising->structure, problem.w_min}, raising->theta,
+                                     Layout{raised, problem.w_min}, problem, a));
+      selector->CountFits(1);
+      if (fit.ssr < least) {
+        least = fit.ssr;
+        current_all = std::move(fit.theta);
+      }
+    } catch (const InputError& e) {
+      failure = e.what();
+    }
+  }
+  if (current_all.empty())
+    throw InputError("the raised structure (" + raised.Describe() +
+                     ") could not be fitted: " + failure);
+  reasons.push_back("raised by one pole and one zero from " + raising->structure.Describe());
 }
 
 // Structure selection: a pilot (two poles and one zero unless the orders are given, one
@@ -539,6 +579,8 @@ bool GlobalIdentifyOptions::IsValid(std::string* error) const {
   if (max_selection_factor < 1) return fail("max_selection_factor must be >= 1");
   if (!(max_fall_back >= 0.0) || !std::isfinite(max_fall_back))
     return fail("max_fall_back must be finite and >= 0");
+  if (raise_order_of && (raise_order_of->theta.empty() || raise_order_of->structure.num_poles >= 6))
+    return fail("raise_order_of: needs a fitted estimate with at most 5 poles");
   if (premise && *premise == SchedulingVariable::kVoltage)
     return fail("premise: |u(t)|, |u(t - T)| or held |u|");
   if (premise && realisation == TsRealisation::kParallel)
@@ -558,7 +600,10 @@ GlobalEstimate IdentifyGlobalTs(const std::vector<Recording>& recordings,
   search.MarkUsable();
   search.Coarsen();
   search.StartSelection();
-  search.Select();
+  if (search.raising)
+    search.Raise();
+  else
+    search.Select();
   search.RefitAtFullRate();
   search.FinalFit();
   search.Intervals();

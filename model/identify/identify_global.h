@@ -171,6 +171,18 @@ struct GlobalIdentifyOptions {
   // Samples with t_s in [first, second) are simulated but never fitted (diagnosis's
   // held-out samples).
   std::vector<std::pair<double, double>> excluded_spans_s;
+  // Not chosen but raised: this estimate's structure with one more pole and one more zero
+  // at every dynamics knot, every other choice kept (knots, hand-over, premise,
+  // realisation, its dead time fixed), started near where it ended with a cancelling
+  // pole-zero pair added (fast, and at a thirtieth, a tenth and a third of the longest
+  // recording; the best of the four fits is kept), fitted on every usable sample, no
+  // selection and no decimation. Its in-sample error may end slightly above the
+  // estimate's (RaiseOrder in global_fit.h says why).
+  // The orders, premise, realisation and dead time above are then ignored. The estimate
+  // must come from IdentifyGlobalTs on the same recordings and excluded spans, and
+  // outlive the call. The diagnosis asks this way whether free dynamics fall back: a
+  // second selection would cost as much as the first (a minute on 77,000 samples).
+  const GlobalEstimate* raise_order_of = nullptr;
   // The physics chain's prior (Eqs. 11-13): a step response rises to its final value
   // without falling back. Above 0, a structure whose fit at any rule falls back by more
   // than this share of its final value (StepFallBack) is not admissible, as one that
@@ -216,6 +228,8 @@ struct GlobalEstimate {
   std::vector<std::string> notes;     // resampling and similar
   double dt_s = 0.0;
   int fits = 0;  // output-error fits run, selection included
+  // The fitted parameters in the structure's internal order (for raise_order_of).
+  std::vector<double> theta;
 };
 
 // Throws InputError (one line naming the recording and the problem) for unusable data,
