@@ -32,6 +32,7 @@
 #include <flexid/voltage_sample_t.hpp>
 #include <vector>
 
+#include "bus/channels.h"
 #include "bus/ids.h"
 #include "daemon/rpc.h"
 #include "lcmtypes/command_check.h"
