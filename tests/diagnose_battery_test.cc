@@ -193,5 +193,21 @@ TEST(DiagnoseBattery, KnownGapWithModelCleanRecordings) {
   ExpectCleanNotFlagged(kWithModelCleanSeeds, true);
 }
 
+// A clean 1.2-5.8 V staircase up and down on a 3-rule plant (seed drawn by
+// bench/diagnose_battery): with one set of dynamics, no gain per level switches plausibly
+// (the jump from 1.2 to 2.3 V swings beyond both levels' frozen models), and the baseline's
+// identification used to end there with "no structure could be fitted". Its pilot is now one
+// linear model, and the rules stage offers smooth rules against it.
+TEST(DiagnoseBattery, AStaircaseWhosePilotCannotSwitchStillGetsABaseline) {
+  const BatteryCase battery_case = DrawBatteryCase(212747392653, {.effect = BatteryEffect::kNone});
+  ASSERT_EQ(battery_case.protocol.name, "stairs-ud");
+  const model::Diagnosis diagnosis = model::Diagnose(battery_case.recording, std::nullopt);
+  bool linear_pilot = false;
+  for (const std::string& note : diagnosis.notes)
+    linear_pilot |= note.find("one linear pilot instead") != std::string::npos;
+  EXPECT_TRUE(linear_pilot) << "the pilot with a gain per level switched plausibly after all";
+  EXPECT_EQ(diagnosis.verdict, "none");
+}
+
 }  // namespace
 }  // namespace flexid::testing

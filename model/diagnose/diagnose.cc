@@ -539,16 +539,21 @@ struct Diagnoser {
     // The verdict of this round: among the claimed candidates (each beat the baseline on
     // both sets of samples), with a trusted model the lowest information criterion on the
     // training samples. Without one, each candidate brings its own refit of a dozen
-    // baseline coefficients, and the training samples favour the refit that bends most:
-    // the one that predicts the held-out samples best wins (by the information
-    // criterion, 33 of 48 effects were named on the independent simulator's and the lab
-    // plant's recordings without a model; by the held-out error, 36).
+    // baseline coefficients, and the training samples alone favour the refit that bends
+    // most; the held-out samples alone favour whichever candidate's refit extrapolates
+    // best to the few conditions they hold (a final rest the training samples lack). The
+    // one with the least squared error over every sample wins. (On the independent
+    // simulator's recordings without a model: by the information criterion 33 of 48
+    // effects were named together with the lab plant's; by the held-out error 16 of 24 on
+    // the simulator's alone, by every sample 18, with no clean recording flagged.)
     size_t best = 0;
-    auto score = [&](const CandidateReport& c) {
-      return trusted_model ? c.bic : c.heldout_rmse_mm;
+    auto score = [&](const std::pair<CandidateReport, FitResult>& c) {
+      if (trusted_model) return c.first.bic;
+      const std::vector<double> r = Residual(rec.deflection_mm, c.second.prediction);
+      return SumSquares(r, data.train) + SumSquares(r, data.heldout);
     };
     for (size_t i = 1; i < claimed.size(); ++i)
-      if (score(claimed[i].first) < score(claimed[best].first)) best = i;
+      if (score(claimed[i]) < score(claimed[best])) best = i;
     auto& [report, fit] = claimed[best];
     Finding finding;
     finding.effect = report.name;

@@ -63,7 +63,10 @@
 //         an unexplained misfit (Misfit), reported where it is, never named.
 //     Among claimed candidates the verdict is, with a trusted model, the one with the lowest
 //     information criterion on the training samples, BIC = n_eff ln(SSE / n) + k ln(n_eff);
-//     without one, the lowest held-out RMSE (each candidate brings its own refit). One more
+//     without one, the least squared error over every sample, fitted and held out (each
+//     candidate brings its own refit: the fitted samples alone favour the refit that bends
+//     most, the held-out ones alone the one that extrapolates best to the few conditions
+//     they hold). One more
 //     effect may then be added on top of it by the same tests (forward selection, at most
 //     max_effects), the earlier effects refitted with it.
 //  6. Without a trusted model, the identified baseline as refitted with the findings is

@@ -271,8 +271,21 @@ void GlobalSearch::Raise() {
 // compared on the pilot, whose error is dominated by what it cannot represent, they
 // would be chosen by noise.
 void GlobalSearch::Select() {
-  // 1. The pilot.
-  RunStage("pilot", {current}, {{}});
+  // 1. The pilot. A gain per knot may not switch plausibly with one set of dynamics (a
+  // staircase whose rules differ: the jump between two levels swings further than either
+  // level's frozen model). Then the pilot is one linear model, which never switches, and
+  // rules stage offers few smooth rules against it.
+  try {
+    RunStage("pilot", {current}, {{}});
+  } catch (const InputError& e) {
+    if (current.knots_V.size() < 2) throw;
+    reasons.push_back(std::string("pilot with a gain per knot: ") + e.what() +
+                      "; one linear pilot instead");
+    current.knots_V = InitialKnots(problem, {}, false, 1);
+    current.dynamics_knots_V = current.knots_V;
+    linear_pilot = true;
+    RunStage("pilot", {current}, {{}});
+  }
   SplitDynamics();
   ChooseRealisation();
   ScanDeadTime();
@@ -464,7 +477,7 @@ std::vector<double> GlobalSearch::SmoothStart(const GlobalStructure& to_structur
 // |u|) takes its place.
 void GlobalSearch::ChooseRules() {
   const size_t limit = options.rules_at_most > 0 ? static_cast<size_t>(options.rules_at_most) : 3;
-  if (current.knots_V.size() > limit) {
+  if (current.knots_V.size() > limit || linear_pilot) {
     const std::vector<double> active = ActiveMagnitudes(problem);
     std::vector<GlobalStructure> candidates = {current};
     std::vector<std::vector<std::vector<double>>> starts = {{current_all}};
