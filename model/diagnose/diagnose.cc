@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <memory>
 #include <stdexcept>
 #include <tuple>
@@ -55,7 +56,12 @@ struct Diagnoser {
   const Recording rec;  // the recordings laid end to end (data.starts)
   const size_t n;
   Diagnosis result;
-  bool relaxation_asked;
+  // Without a trusted model: the baseline with one more pole and zero under the physics
+  // chain's prior, its held-out RMSE and its held-out likelihood ratio against the
+  // baseline: what model order alone gains there, which a back-relaxation must exceed
+  // (Baseline, Judge). Infinite: no such model could be fitted, and none is named.
+  double more_order_heldout_mm = std::numeric_limits<double>::infinity();
+  double more_order_heldout_lr = std::numeric_limits<double>::infinity();
   std::string model_words;
   std::vector<EffectKind> kinds;  // the candidates tried
   double test_level = 0.0;        // of every test: 1 - false-alarm rate / tests
@@ -70,7 +76,6 @@ struct Diagnoser {
         trusted_model(trusted),
         rec(JoinRecordings(recordings, &data.starts, &data.shift_s)),
         n(rec.t_s.size()),
-        relaxation_asked(trusted.has_value()),
         model_words(trusted ? "the model" : "the identified model") {
     result.trusted_model = trusted_model.has_value();
     for (const Recording& r : recordings) result.recordings.push_back(r.source);
@@ -167,40 +172,33 @@ struct Diagnoser {
     } else {
       const GlobalEstimate estimate = IdentifyBaseline(rec, data, &result);
       result.baseline_model = estimate.model;
-      // The physics chain's step response cannot fall back (Eqs. 11-13), so a slow
-      // relaxation is named only where the data ask for one: a free fit with one more pole
-      // and zero than the baseline falls back. Otherwise an extra pole-zero pair is model
-      // order, and back-relaxation on top of the baseline would test that (clean square
-      // waves were flagged when it was tried everywhere).
+      // The physics chain's step response cannot fall back (Eqs. 11-13), and the baseline
+      // is held to that. A back-relaxation on top of it adds a slow pole-zero pair that
+      // falls back; what may help is the extra order alone (a clean square wave on a plant
+      // with more slow modes than the baseline was flagged). So it is named only where it
+      // predicts the held-out samples better than the baseline with one more pole and zero
+      // that does not fall back (Judge).
       if (estimate.structure.num_poles < 6) {
         try {
           const GlobalEstimate more = IdentifyBaseline(rec, data, &result, &estimate);
-          std::vector<Absorbed> fall = ReadAgainstPhysics(more.model, data.noise_mm);
-          // A fall-back fitted on the training samples asks only if it predicts the held-out
-          // samples better than the baseline does.
-          auto heldout_rmse_mm = [&](const TsModel& model) {
-            return RmsOver(
-                Residual(rec.deflection_mm, Predict(data, Augmented{&model, {}, nullptr})),
-                data.heldout);
-          };
-          const double before_mm = heldout_rmse_mm(estimate.model);
-          const double after_mm = heldout_rmse_mm(more.model);
-          if (!fall.empty() && !(after_mm < before_mm)) {
-            result.notes.push_back(
-                "back-relaxation: a free fit with one more pole and zero falls "
-                "back but does not predict the held-out samples better (" +
-                Mm(before_mm) + " -> " + Mm(after_mm) + "); not tried");
-            fall.clear();
-          }
-          relaxation_asked = !fall.empty();
+          const std::vector<double> r =
+              NuisanceFreeResidual(data, Predict(data, Augmented{&more.model, {}, nullptr}));
+          const std::vector<double> r0 =
+              NuisanceFreeResidual(data, Predict(data, Augmented{&estimate.model, {}, nullptr}));
+          more_order_heldout_mm = RmsOver(r, data.heldout);
+          more_order_heldout_lr =
+              std::max(0.0, EffectiveSamples(r, data.heldout) *
+                                std::log(SumSquares(r0, data.heldout) /
+                                         std::max(SumSquares(r, data.heldout), 1e-300)));
           result.notes.push_back(
-              "back-relaxation: " +
-              (fall.empty() ? std::string("a free fit with one more pole and zero (") +
-                                  more.structure.Describe() + ") does not fall back; not tried"
-                            : "a free fit with one more pole and zero falls back: " +
-                                  fall.front().explanation));
+              "back-relaxation: to be named, it must predict the held-out "
+              "samples better than one more pole and zero that does not "
+              "fall back (" +
+              more.structure.Describe() + ": " + Mm(more_order_heldout_mm) + ")");
         } catch (const InputError& e) {
-          result.notes.push_back(std::string("back-relaxation: not tried (") + e.what() + ")");
+          result.notes.push_back(std::string("back-relaxation: no model of one more pole and "
+                                             "zero to compare with (") +
+                                 e.what() + ")");
         }
       }
     }
@@ -302,15 +300,7 @@ struct Diagnoser {
     for (EffectKind kind : AllEffects()) {
       if (kind == EffectKind::kCreep) continue;  // fitted together with back-relaxation
       std::string reason;
-      if (kind == EffectKind::kBackRelaxation && !relaxation_asked) {
-        CandidateReport report;
-        report.kind = kind;
-        report.name = EffectName(kind);
-        report.reason =
-            "not tried: a free fit with one more pole and zero does not fall back (a slow "
-            "pole-zero pair there is model order, not physics)";
-        result.candidates.push_back(std::move(report));
-      } else if (Applicable(kind, data, &reason)) {
+      if (Applicable(kind, data, &reason)) {
         kinds.push_back(kind);
       } else {
         CandidateReport report;
@@ -509,6 +499,17 @@ struct Diagnoser {
     } else if (!(report.heldout_rmse_mm < RmsOver(current_r, data.heldout))) {
       report.reason = "the held-out RMSE does not fall (" + Mm(RmsOver(current_r, data.heldout)) +
                       " -> " + Mm(report.heldout_rmse_mm) + ")";
+    } else if (!trusted_model &&
+               (fitted_kind == EffectKind::kBackRelaxation || fitted_kind == EffectKind::kCreep) &&
+               !(report.heldout_likelihood_ratio - more_order_heldout_lr > heldout_threshold)) {
+      report.reason =
+          "one more pole and zero that does not fall back gains as much on the held-out "
+          "samples (" +
+          Mm(more_order_heldout_mm) +
+          Format(", likelihood ratio %.1f against the baseline; ", more_order_heldout_lr) +
+          report.name + Format(" %.1f", report.heldout_likelihood_ratio) +
+          Format(", at least %.1f more needed): model order, not ", heldout_threshold) +
+          report.name;
     } else if (report.effect_rms_mm < options.min_effect_to_noise * data.noise_mm) {
       report.reason = "real but negligible: adds " + Mm(report.effect_rms_mm) +
                       Format(", under %.2g times the noise", options.min_effect_to_noise);

@@ -153,7 +153,7 @@ constexpr double kBaselineFallBack = 0.01;
 // structure chosen on held-out blocks of the training samples. Notes go to result->notes.
 // `higher_than`: a baseline already identified; its structure with one more pole and zero,
 // premise, realisation and dead time as chosen (for the back-relaxation test below); notes
-// are then not added.
+// are then not added; it is held to the physics chain's prior like the baseline.
 GlobalEstimate IdentifyBaseline(const Recording& rec, const Data& data, Diagnosis* result,
                                 const GlobalEstimate* higher_than = nullptr);
 

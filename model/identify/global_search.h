@@ -37,7 +37,7 @@ struct GlobalSearch {
   std::vector<double> knots;  // the initial knots: switching is checked between them
   std::optional<Selector> selector;
   bool orders_fixed = false;
-  bool linear_pilot = false;  // a gain per knot did not switch plausibly (Select)
+  bool linear_pilot = false;        // a gain per knot did not switch plausibly (Select)
   GlobalStructure current;          // the structure chosen so far
   std::vector<double> current_all;  // the current structure fitted on all usable data
   StructureTrial current_trial;     // the current structure held out
