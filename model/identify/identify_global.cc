@@ -506,6 +506,19 @@ void GlobalSearch::ChooseRules() {
       few.centres_fitted = true;
       candidates.push_back(few);
       starts.push_back({SmoothStart(few)});
+      // The realisation was chosen where the rules shared their dynamics or sat on
+      // every level, where it matters least; for a few rules with their own dynamics
+      // the other realisation is a candidate too. Not under rules_at_most (the
+      // diagnosis's baseline, kept to the seed's blend so that it absorbs as little as
+      // it can: there the extra candidates named 17 of the independent set's 24 effects
+      // rather than 19).
+      if (!options.realisation && options.rules_at_most == 0) {
+        GlobalStructure other = few;
+        other.realisation = few.realisation == TsRealisation::kFrozen ? TsRealisation::kParallel
+                                                                      : TsRealisation::kFrozen;
+        candidates.push_back(other);
+        starts.push_back({SmoothStart(other)});
+      }
     }
     RunStage("rules", candidates, starts);
   }
