@@ -274,7 +274,7 @@ void GlobalSearch::Select() {
   // 1. The pilot. A gain per knot may not switch plausibly with one set of dynamics (a
   // staircase whose rules differ: the jump between two levels swings further than either
   // level's frozen model). Then the pilot is one linear model, which never switches, and
-  // rules stage offers few smooth rules against it.
+  // the rules stage offers few smooth rules against it.
   try {
     RunStage("pilot", {current}, {{}});
   } catch (const InputError& e) {
