@@ -65,7 +65,8 @@
 // blocks in time, alternately fitted and held out, in turn; each fold starts from the
 // all-data fit):
 //   1. a pilot: orders 2/1 (unless given), a gain per visited level, one set of dynamics,
-//      premise |u(t - T)|;
+//      premise |u(t - T)|; where no such fit switches plausibly, one linear model (and
+//      stage 6 then offers few smooth rules against it);
 //   2. where the dynamics change: the split between two neighbouring knots that helps
 //      most in sample, kept while it predicts held-out data better (below);
 //   3. the realisation, when the dynamics change with the voltage: the rules switched as
