@@ -8,6 +8,7 @@
 #include <cmath>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <stdexcept>
 #include <tuple>
 
@@ -164,56 +165,55 @@ struct Diagnoser {
     result.noise_std_mm = data.noise_mm;
   }
 
-  // 2. The baseline: the trusted model, or one identified on the training samples (with
-  // the question whether back-relaxation is to be tried), and its prediction.
+  // 2. The baseline: the trusted model, or one identified on the training samples, and its
+  // prediction; without a trusted model also the bar back-relaxation and creep must clear
+  // (MoreOrder).
   void Baseline() {
+    std::optional<GlobalEstimate> estimate;
     if (trusted_model) {
       result.baseline_model = *trusted_model;
-    } else {
-      const GlobalEstimate estimate = IdentifyBaseline(rec, data, &result);
-      result.baseline_model = estimate.model;
-      // The physics chain's step response cannot fall back (Eqs. 11-13), and the baseline
-      // is held to that. A back-relaxation on top of it adds a slow pole-zero pair that
-      // falls back; what may help is the extra order alone (a clean square wave on a plant
-      // with more slow modes than the baseline was flagged). So it is named only where it
-      // predicts the held-out samples better than the baseline with one more pole and zero
-      // that does not fall back (Judge).
-      if (estimate.structure.num_poles < 6) {
-        try {
-          const GlobalEstimate more = IdentifyBaseline(rec, data, &result, &estimate);
-          const std::vector<double> r =
-              NuisanceFreeResidual(data, Predict(data, Augmented{&more.model, {}, nullptr}));
-          const std::vector<double> r0 =
-              NuisanceFreeResidual(data, Predict(data, Augmented{&estimate.model, {}, nullptr}));
-          more_order_heldout_mm = RmsOver(r, data.heldout);
-          more_order_heldout_lr =
-              std::max(0.0, EffectiveSamples(r, data.heldout) *
-                                std::log(SumSquares(r0, data.heldout) /
-                                         std::max(SumSquares(r, data.heldout), 1e-300)));
-          result.notes.push_back(
-              "back-relaxation: to be named, it must predict the held-out "
-              "samples better than one more pole and zero that does not "
-              "fall back (" +
-              more.structure.Describe() + ": " + Mm(more_order_heldout_mm) + ")");
-        } catch (const InputError& e) {
-          result.notes.push_back(std::string("back-relaxation: no model of one more pole and "
-                                             "zero to compare with (") +
-                                 e.what() + ")");
-        }
-      }
-    }
-    const TsModel& baseline = result.baseline_model;
-    if (trusted_model) {
       for (const Effect& e : options.baseline_effects)
         if (e.params.size() != EffectParameterNames(e.kind).size())
           throw std::invalid_argument(std::string("effect ") + EffectName(e.kind) +
                                       ": wrong parameter count");
       data.given = options.baseline_effects;
+    } else {
+      estimate = IdentifyBaseline(rec, data, &result);
+      result.baseline_model = estimate->model;
     }
-    result.baseline_mm = Predict(data, Augmented{&baseline, {}, nullptr});
+    result.baseline_mm = Predict(data, Augmented{&result.baseline_model, {}, nullptr});
     for (double y : result.baseline_mm)
       if (!std::isfinite(y))
         throw InputError(rec.source + ": the baseline model's prediction is not finite");
+    if (estimate && estimate->structure.num_poles < 6) MoreOrder(*estimate);
+  }
+
+  // The physics chain's step response cannot fall back (Eqs. 11-13), and the identified
+  // baseline is held to that. A back-relaxation on top of it adds a slow pole-zero pair
+  // that falls back; what may help is the extra order alone (a clean square wave on a
+  // plant with more slow modes than the baseline was flagged). So it is named only where
+  // it predicts the held-out samples better than the baseline with one more pole and zero
+  // that does not fall back (Judge).
+  void MoreOrder(const GlobalEstimate& estimate) {
+    try {
+      const GlobalEstimate more = IdentifyBaseline(rec, data, &result, &estimate);
+      const std::vector<double> r =
+          NuisanceFreeResidual(data, Predict(data, Augmented{&more.model, {}, nullptr}));
+      const std::vector<double> r0 = NuisanceFreeResidual(data, result.baseline_mm);
+      more_order_heldout_mm = RmsOver(r, data.heldout);
+      more_order_heldout_lr =
+          std::max(0.0, EffectiveSamples(r, data.heldout) *
+                            std::log(SumSquares(r0, data.heldout) /
+                                     std::max(SumSquares(r, data.heldout), 1e-300)));
+      result.notes.push_back(
+          "back-relaxation: to be named, it must predict the held-out samples better than one "
+          "more pole and zero that does not fall back (" +
+          more.structure.Describe() + ": " + Mm(more_order_heldout_mm) + ")");
+    } catch (const InputError& e) {
+      result.notes.push_back(
+          std::string("back-relaxation: no model of one more pole and zero to compare with (") +
+          e.what() + ")");
+    }
   }
 
   // Step-timing nuisance (Data::edges_*): one regressor per sample where the voltage
