@@ -911,26 +911,6 @@ int64_t UdpRcvbufErrors() {
   return -1;
 }
 
-struct ThreadCpu {
-  std::string name;
-  int64_t cpu_ns = 0;
-};
-
-// CPU time of every thread of this process, by tid (schedstat: ns on a CPU).
-std::map<pid_t, ThreadCpu> ThreadCpuTimes() {
-  std::map<pid_t, ThreadCpu> out;
-  std::error_code ec;
-  for (const auto& entry : fs::directory_iterator("/proc/self/task", ec)) {
-    const pid_t tid = static_cast<pid_t>(std::stol(entry.path().filename().string()));
-    ThreadCpu t;
-    std::ifstream comm(entry.path() / "comm");
-    std::getline(comm, t.name);
-    t.cpu_ns = ReadNumberFile((entry.path() / "schedstat").string());
-    out[tid] = t;
-  }
-  return out;
-}
-
 // What the scheduler did with one thread: CPU time, time spent runnable but waiting for
 // a CPU (/proc/self/task/T/schedstat: run-queue wait), time slices, and context switches
 // (status: voluntary ones are waits for input, involuntary ones preemptions).
@@ -1489,7 +1469,8 @@ int main(int argc, char** argv) {
     return 1;
   }
   const auto sockets_before = UdpSockets(port);
-  const auto threads_before_daemon = ThreadCpuTimes();
+  const auto threads_before_daemon = ThreadScheds();
+  flexid::daemon::KeepFreedMemory();  // as flexidd's main() does
   DaemonThread daemon;
   try {
     daemon.Start(config);
@@ -1500,7 +1481,7 @@ int main(int argc, char** argv) {
   }
   // The threads the daemon started, in the order daemon.cc starts them (Impl's constructor).
   std::vector<pid_t> daemon_threads;
-  for (const auto& [tid, t] : ThreadCpuTimes())
+  for (const auto& [tid, t] : ThreadScheds())
     if (!threads_before_daemon.count(tid) && t.name == "flexidd") daemon_threads.push_back(tid);
   const char* const kDaemonThreadRoles[] = {"sample writer", "LCM receive",
                                             "identification worker"};
@@ -1571,7 +1552,7 @@ int main(int argc, char** argv) {
   std::this_thread::sleep_until(t0);
   rusage usage_start{};
   getrusage(RUSAGE_SELF, &usage_start);
-  const auto threads_start = ThreadCpuTimes();
+  const auto threads_start = ThreadScheds();
   const Clock::time_point wall_start = t0;
   const MachineCpu machine_start = ReadMachineCpu();
   LoadMonitor monitor;
@@ -1651,7 +1632,7 @@ int main(int argc, char** argv) {
   const Clock::time_point wall_end = publisher.report().end;
   rusage usage_end{};
   getrusage(RUSAGE_SELF, &usage_end);
-  const auto threads_end = ThreadCpuTimes();
+  const auto threads_end = ThreadScheds();
   const auto sockets_end = UdpSockets(port);
   const int64_t rcvbuf_errors_after = UdpRcvbufErrors();
   const int daemon_rcvbuf = ReceiveBufferBytes(daemon_inode);

@@ -36,17 +36,6 @@ auth::Verifier MakeVerifier(const Config& config) {
   return auth::Verifier(key, options);
 }
 
-// Memory freed by identification and diagnosis stays with the process for the next job
-// instead of going back to the kernel. Otherwise glibc maps each large block afresh and
-// unmaps it when freed, and trims its heaps: a fit then takes about 12,000 page faults a
-// second, and every unmap interrupts the other threads of the process (the loop and LCM's
-// receive thread) to flush their address translations. Kept: up to 32 MiB per block on
-// the heap (larger ones are still mapped), up to 256 MiB free at the top of a heap.
-void KeepFreedMemory() {
-  mallopt(M_MMAP_THRESHOLD, 32 << 20);
-  mallopt(M_TRIM_THRESHOLD, 256 << 20);
-}
-
 OwnershipOptions OwnershipOptionsOf(const Config& config) {
   OwnershipOptions options;
   options.wait = std::chrono::milliseconds(static_cast<int64_t>(config.ownership_wait_s * 1000.0));
@@ -55,6 +44,11 @@ OwnershipOptions OwnershipOptionsOf(const Config& config) {
 }
 
 }  // namespace
+
+void KeepFreedMemory() {
+  mallopt(M_MMAP_THRESHOLD, 32 << 20);
+  mallopt(M_TRIM_THRESHOLD, 256 << 20);
+}
 
 Service::Service(Config c, std::string path)
     : config(std::move(c)),
@@ -66,7 +60,6 @@ Service::Service(Config c, std::string path)
       ownership(config.daemon_id, auth::RandomNonce(), OwnershipOptionsOf(config), started) {
   database_identity = IdentityOf(config.database);  // none in memory: nothing to watch
   if (!lcm.good()) throw std::runtime_error("cannot join the LCM bus at " + config.lcm_url);
-  KeepFreedMemory();
   // Signals are taken through signalfd in the loop. They are blocked here, before any
   // thread starts, so that every thread inherits the mask: a SIGTERM delivered to the
   // writer or the worker would otherwise end the process without flushing.

@@ -16,6 +16,7 @@ int main(int argc, char** argv) {
   // anything else, so that one arriving during start-up waits for the loop instead of
   // ending the process.
   flexid::daemon::BlockHandledSignals();
+  flexid::daemon::KeepFreedMemory();
   CLI::App app{
       "flexidd: records actuator trials from the bus, predicts live, raises alerts, identifies on "
       "demand"};
