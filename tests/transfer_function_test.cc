@@ -120,6 +120,27 @@ TEST(TransferFunction, RealisationHasTheSameFrequencyResponse) {
   }
 }
 
+// StepFallBack reads the step response from its partial fractions; the share at the peak
+// it finds, and the time it takes to fall by 1/e, are the simulated step response's.
+TEST(TransferFunction, FallBackMatchesTheSimulatedStepResponse) {
+  // A slow zero (0.005 rad/s) under poles at 0.015 and 0.135 rad/s: an overshoot; and a
+  // 3-zero / 4-pole model with a slow zero and a lightly damped pair.
+  const TransferFunction relaxing{{1.0, 0.005}, {1.0, 0.15, 0.002}, 2.0};
+  const TransferFunction seed_like{{0.001, 0.02, 0.3, 0.0015}, {1.0, 0.5, 0.3, 0.04, 0.0003}, 3.5};
+  for (const TransferFunction& tf : {relaxing, seed_like}) {
+    const FallBack fall = StepFallBack(tf);
+    ASSERT_GT(fall.share, 0.1);
+    const double K = DcGain(tf);
+    const std::vector<double> y =
+        StepResponse(tf, {fall.peak_time_s, fall.peak_time_s + 1.0, fall.peak_time_s + fall.tau_s});
+    EXPECT_NEAR((y[0] - K) / K, fall.share, 1e-9);
+    EXPECT_LE(y[1], y[0]);  // (before it may lie a fast transient, which StepFallBack leaves out)
+    EXPECT_NEAR((y[2] - K) / K, fall.share / std::exp(1.0), 0.01 * fall.share);
+  }
+  // No overshoot: none read.
+  EXPECT_EQ(StepFallBack(TransferFunction{{2.0, 0.3}, {1.0, 0.15, 0.002}, 1.0}).share, 0.0);
+}
+
 TEST(TransferFunction, FirstOrderStepResponseIsAnalytic) {
   // G = K / (tau s + 1): y(t) = K (1 - exp(-t / tau)).
   const double gain = 2.5, tau_s = 4.0;

@@ -115,6 +115,40 @@ std::vector<double> StepResponse(const TransferFunction& tf, const std::vector<d
   return y;
 }
 
+namespace {
+
+// The unit step response at times t_s (all past the dead time T) from the partial
+// fractions of N(s) / (s D(s)) (poles p_i distinct and stable):
+//   y(t) = K + sum_i N(p_i) / (p_i D'(p_i)) exp(p_i (t - T)),
+// a few exponentials a point rather than a simulation (StepFallBack is evaluated inside
+// fits). Repeated or unstable poles: the simulation (StepResponse).
+std::vector<double> StepResponseAfterDelay(const TransferFunction& tf, double K,
+                                           const std::vector<double>& t_s) {
+  const std::vector<std::complex<double>> poles = Poles(tf);
+  bool distinct = true;
+  for (size_t i = 0; i < poles.size(); ++i) {
+    distinct &= poles[i].real() < 0.0;
+    for (size_t j = 0; j < i; ++j)
+      distinct &= std::abs(poles[i] - poles[j]) > 1e-4 * std::max(std::abs(poles[i]), 1e-9);
+  }
+  if (!distinct || poles.empty()) return StepResponse(tf, t_s);
+  // D'(s), coefficients highest power first as tf.den.
+  std::vector<double> derivative;
+  const size_t order = tf.den.size() - 1;
+  for (size_t j = 0; j < order; ++j)
+    derivative.push_back(static_cast<double>(order - j) * tf.den[j]);
+  std::vector<std::complex<double>> residue;
+  for (const std::complex<double>& p : poles)
+    residue.push_back(EvaluatePolynomial(tf.num, p) / (p * EvaluatePolynomial(derivative, p)));
+  std::vector<double> y(t_s.size(), K);
+  for (size_t k = 0; k < t_s.size(); ++k)
+    for (size_t i = 0; i < poles.size(); ++i)
+      y[k] += (residue[i] * std::exp(poles[i] * (t_s[k] - tf.delay_s))).real();
+  return y;
+}
+
+}  // namespace
+
 FallBack StepFallBack(const TransferFunction& tf) {
   FallBack result;
   const double K = DcGain(tf);
@@ -128,7 +162,7 @@ FallBack StepFallBack(const TransferFunction& tf) {
   if (!(end > begin)) return result;
   std::vector<double> t;
   for (int i = 0; i <= 2000; ++i) t.push_back(begin + (end - begin) * i / 2000.0);
-  const std::vector<double> s = StepResponse(tf, t);
+  const std::vector<double> s = StepResponseAfterDelay(tf, K, t);
   size_t peak = 0;
   for (size_t i = 0; i < s.size(); ++i)
     if ((s[i] - K) / K > (s[peak] - K) / K) peak = i;

@@ -60,7 +60,8 @@ struct Diagnoser {
   // Without a trusted model: the baseline with one more pole and zero under the physics
   // chain's prior, its held-out RMSE and its held-out likelihood ratio against the
   // baseline: what model order alone gains there, which a back-relaxation must exceed
-  // (Baseline, Judge). Infinite: no such model could be fitted, and none is named.
+  // (Baseline, Judge). When every such fit falls back (or none can be made), the
+  // baseline's own: 0.
   double more_order_heldout_mm = std::numeric_limits<double>::infinity();
   double more_order_heldout_lr = std::numeric_limits<double>::infinity();
   std::string model_words;
@@ -210,9 +211,15 @@ struct Diagnoser {
           "more pole and zero that does not fall back (" +
           more.structure.Describe() + ": " + Mm(more_order_heldout_mm) + ")");
     } catch (const InputError& e) {
+      // Every fit of one more pole and zero fell back (or failed): under the prior the
+      // baseline is the best model of its kind, and the bar is the baseline's.
+      more_order_heldout_mm =
+          RmsOver(Residual(rec.deflection_mm, result.baseline_mm), data.heldout);
+      more_order_heldout_lr = 0.0;
       result.notes.push_back(
-          std::string("back-relaxation: no model of one more pole and zero to compare with (") +
-          e.what() + ")");
+          std::string("back-relaxation: no model of one more pole and zero that does not fall "
+                      "back (") +
+          e.what() + "): it must predict the held-out samples better than the baseline");
     }
   }
 

@@ -27,13 +27,16 @@
 //     the candidates' refits with their effect removed when one of them landed in a better
 //     optimum (the gain is then the optimiser's, not the effect's). Without a trusted
 //     model the baseline is identified under the physics chain's prior (max_fall_back
-//     1 %: no rule's step response may fall back, Eqs. 11-13). Back-relaxation and creep
+//     1 %: no rule's step response may fall back, Eqs. 11-13), and every refit of it stays
+//     under it (no more than it fell back from the start; if no structure meets the prior,
+//     the baseline is identified without it, in a note). Back-relaxation and creep
 //     add a slow pole-zero pair to it, and the extra order alone may be what helps (a
 //     clean square wave on a plant with more slow modes than the baseline was read as
 //     back-relaxation). So the baseline with one more pole and zero under the same prior
 //     (GlobalIdentifyOptions::raise_order_of: the baseline's structure, one fit from four
-//     starts) is fitted too, and either is named only where its held-out likelihood ratio
-//     exceeds what that model gains there by the held-out test's threshold.
+//     starts, each under the prior) is fitted too, and either is named only where its
+//     held-out likelihood ratio exceeds what that model gains there by the held-out test's
+//     threshold (what the baseline gains, 0, when every such fit falls back).
 //     With a trusted model the recorded voltage is a sampled column: where a step really
 //     happened between two samples is unknown, and its timing error leaves a slow error in
 //     the prediction. Its fits and tests are made after projecting out the baseline's

@@ -52,9 +52,12 @@ void GlobalSearch::RefitAtFullRate() {
     try {
       FitResult refined = Fit(problem, layout, usable, current_all);
       ++fits;
-      if (SwitchingProblem(layout.Model(refined.theta.data(), problem.rest_band_V), problem, knots,
+      const TsModel model = layout.Model(refined.theta.data(), problem.rest_band_V);
+      // Held to what the selection held every fit to: plausible switching and the prior.
+      if (SwitchingProblem(model, problem, knots,
                            std::sqrt(refined.ssr / static_cast<double>(refined.samples)))
-              .empty())
+              .empty() &&
+          FallBackProblem(model, problem.max_fall_back).empty())
         current_all = refined.theta;
     } catch (const InputError&) {
     }

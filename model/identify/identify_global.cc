@@ -249,6 +249,13 @@ void GlobalSearch::Raise() {
                           RaiseOrder(Layout{raising->structure, problem.w_min}, raising->theta,
                                      Layout{raised, problem.w_min}, problem, a));
       selector->CountFits(1);
+      if (const std::string fall = FallBackProblem(
+              Layout{raised, problem.w_min}.Model(fit.theta.data(), problem.rest_band_V),
+              problem.max_fall_back);
+          !fall.empty()) {
+        failure = fall;
+        continue;
+      }
       if (fit.ssr < least) {
         least = fit.ssr;
         current_all = std::move(fit.theta);
