@@ -39,9 +39,10 @@
 //     hold 400-700 s), and that error is read as an effect or hides the concealed one.
 //     With the model within the noise, a sensor drift was read as back-relaxation and two
 //     wears as hysteresis: the catalogue's formulas against the battery's.
-//   bench/diagnose_battery on fresh draws: without a model 7 of 20 named, 1 of 4 clean
-//     recordings flagged (seed 737836793372: random levels read as a dead zone), so the
-//     clean group passing is not yet the goal met.
+//   bench/diagnose_battery on fresh draws: without a model 13 of 20 named, 1 of 4 clean
+//     recordings flagged (seed 834099763815: a step read as hysteresis), and 9 of 20, 1 of
+//     4 (seed 737836793372: random levels read as a dead zone), so the clean group passing
+//     is not yet the goal met.
 // Diagnose takes 1-6 s per recording without a model (up to 25 s on 1000 s of bipolar
 // levels), 1 s with one; the identification 7.5 s.
 #include <gtest/gtest.h>

@@ -32,11 +32,12 @@
 //     the baseline is identified without it, in a note). Back-relaxation and creep
 //     add a slow pole-zero pair to it, and the extra order alone may be what helps (a
 //     clean square wave on a plant with more slow modes than the baseline was read as
-//     back-relaxation). So the baseline with one more pole and zero under the same prior
+//     back-relaxation). So the baseline with one more pole and zero under a stricter prior
 //     (GlobalIdentifyOptions::raise_order_of: the baseline's structure, one fit from four
-//     starts, each under the prior) is fitted too, and either is named only where its
-//     held-out likelihood ratio exceeds what that model gains there by the held-out test's
-//     threshold (what the baseline gains, 0, when every such fit falls back).
+//     starts, falling back at most 0.2 %: the baseline's 1 % is slack, and a higher order
+//     that spends it is a back-relaxation) is fitted too, and either is named only where
+//     its held-out likelihood ratio exceeds what that model gains there by the held-out
+//     test's threshold (what the baseline gains, 0, when every such fit falls back).
 //     With a trusted model the recorded voltage is a sampled column: where a step really
 //     happened between two samples is unknown, and its timing error leaves a slow error in
 //     the prediction. Its fits and tests are made after projecting out the baseline's

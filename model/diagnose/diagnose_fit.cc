@@ -557,7 +557,7 @@ GlobalEstimate IdentifyBaseline(const Recording& rec, const Data& data, Diagnosi
   identify.rules_at_most = 2;
   // The physics chain's step response cannot fall back (Eqs. 11-13): a baseline that
   // does has absorbed back-relaxation, and the effect is then never seen.
-  identify.max_fall_back = kBaselineFallBack;
+  identify.max_fall_back = higher_than ? kMoreOrderFallBack : kBaselineFallBack;
   // One more pole and zero than the baseline, everything else kept and its dead time
   // fixed: the question is the slow dynamics, and one fit from where the baseline ended
   // answers it (a second selection would cost as much as the first).

@@ -147,6 +147,11 @@ bool Applicable(EffectKind kind, const Data& data, std::string* why);
 // The identified baseline may fall back by at most this share of a step (identify_global.h,
 // max_fall_back): the 1 % below which ReadAgainstPhysics reads no fall-back.
 constexpr double kBaselineFallBack = 0.01;
+// The model of one more pole and zero that back-relaxation must beat (Diagnoser::MoreOrder)
+// may fall back by at most this share: the baseline's 1 % is slack for a model that should
+// not fall back at all, and a higher order that gains by spending it (a slow pole and zero
+// that fall back 0.8 %) is a back-relaxation by another name, not model order.
+constexpr double kMoreOrderFallBack = 0.002;
 
 // Without a trusted model: the whole T-S model identified on the training samples by the
 // global fit (identify_global.h, the path `flexid identify` and flexidd take), its
