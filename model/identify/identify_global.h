@@ -190,7 +190,8 @@ struct GlobalIdentifyOptions {
   // The physics chain's prior (Eqs. 11-13): a step response rises to its final value
   // without falling back. Above 0, a structure whose fit at any rule falls back by more
   // than this share of its final value (StepFallBack) is not admissible, as one that
-  // swings on switching is not. 0: any step response.
+  // swings on switching is not; so is such a refit on every sample after a choice on a
+  // coarser grid, and such a fit of raise_order_of's structure. 0: any step response.
   double max_fall_back = 0.0;
   bool IsValid(std::string* error) const;
 };
