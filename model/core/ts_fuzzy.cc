@@ -324,4 +324,11 @@ TsModel SingleRule(const TransferFunction& tf) {
           {{0.0, tf, {MembershipShape::kTrapezoidal, {-kInf, -kInf, kInf, kInf}}}}};
 }
 
+double LargestFallBack(const TsModel& model) {
+  double largest = 0.0;
+  for (const LocalModel& rule : model.rules)
+    largest = std::max(largest, StepFallBack(rule.tf).share);
+  return largest;
+}
+
 }  // namespace flexid::model

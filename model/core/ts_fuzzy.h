@@ -120,6 +120,10 @@ bool IsValid(const TsModel& model, std::string* error);
 // kAbsVoltageDelayed give |u|; the simulators apply the hold and the delay).
 double SchedulingValue(const TsModel& model, double voltage_V);
 
+// The largest share by which any rule's step response falls back (StepFallBack), 0 if
+// none does.
+double LargestFallBack(const TsModel& model);
+
 // Eq. (16): normalised firing strengths mu (size = number of rules, sum 1). Where no
 // membership fires (z beyond every support), the rule whose level is nearest takes it all.
 void NormalisedMemberships(const TsModel& model, double z, std::vector<double>* mu);

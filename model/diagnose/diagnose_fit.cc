@@ -213,20 +213,16 @@ class EffectCost {
     // (Eqs. 11-13: a step response that rises without falling back; kBaselineFallBack, or
     // what the baseline it starts from already falls back): free, its coefficients would
     // absorb a back-relaxation, leaving nothing to the effect that models it.
-    if (problem_.refit_from) {
-      max_fall_back_ = kBaselineFallBack;
-      for (const LocalModel& rule : problem_.refit_from->rules)
-        max_fall_back_ = std::max(max_fall_back_, StepFallBack(rule.tf).share);
-    }
+    if (problem_.refit_from)
+      max_fall_back_ = std::max(kBaselineFallBack, LargestFallBack(*problem_.refit_from));
   }
   bool operator()(double const* const* parameters, double* residuals) const {
     const Augmented model = Assemble(problem_, parameters[0]);
-    if (model.refit && max_fall_back_ > 0.0)
-      for (const LocalModel& rule : model.refit->rules)
-        if (StepFallBack(rule.tf).share > max_fall_back_ * (1.0 + 1e-9)) {
-          std::fill(residuals, residuals + data_.train.size(), 1e6);
-          return true;
-        }
+    if (model.refit && max_fall_back_ > 0.0 &&
+        LargestFallBack(*model.refit) > max_fall_back_ * (1.0 + 1e-9)) {
+      std::fill(residuals, residuals + data_.train.size(), 1e6);
+      return true;
+    }
     const std::vector<double> y = Predict(data_, model, baseline_);
     const std::vector<double> projected = NuisanceFreeResidual(data_, y);
     for (size_t i = 0; i < data_.train.size(); ++i) {
