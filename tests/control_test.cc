@@ -216,5 +216,32 @@ TEST(Controller, RefusesAnUnreachableReferenceBeforeTheFirstCommand) {
   }
 }
 
+// The rate limit is the plan's to use: after a step of the reference the voltage moves by
+// up to rate x Ts per sample, and more than a replan's 0.5 V per 0.5 s (when each plan's
+// first block was bounded by what the rate reaches by the block's start, the controller
+// moved at a fifth of the limit).
+TEST(Controller, ThePlanUsesTheWholeRateLimitAfterAStep) {
+  const TsModel model = SeedTsModel();
+  const SteadyStateMap steady(model, -8.0, 8.0);
+  const Reference step({0.0, 30.0, 30.1, 120.0},
+                       {steady.DeflectionAt(1.0), steady.DeflectionAt(1.0),
+                        steady.DeflectionAt(5.0), steady.DeflectionAt(5.0)},
+                       "step");
+  ControllerOptions options;
+  options.kind = ControllerKind::kOpenLoop;
+  Controller controller(model, step, options);
+  std::vector<double> u_V;
+  for (long k = 0; !controller.Finished(k); ++k) u_V.push_back(controller.Next(k, NAN).voltage_V);
+  const double per_sample_V = options.limits.rate_V_per_s * options.sample_period_s;
+  double largest_step_V = 0.0, largest_half_second_V = 0.0;
+  for (size_t k = 1; k < u_V.size(); ++k) {
+    largest_step_V = std::max(largest_step_V, std::abs(u_V[k] - u_V[k - 1]));
+    if (k >= 5)
+      largest_half_second_V = std::max(largest_half_second_V, std::abs(u_V[k] - u_V[k - 5]));
+  }
+  EXPECT_LE(largest_step_V, per_sample_V + 1e-9);
+  EXPECT_GT(largest_half_second_V, 2.0 * per_sample_V);
+}
+
 }  // namespace
 }  // namespace flexid::model::control

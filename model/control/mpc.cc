@@ -114,7 +114,11 @@ void PredictiveController::Bounds(const CommandLimiter& limiter, const Eigen::Ve
   for (Eigen::Index b = 0; b < U0.size(); ++b) {
     const auto a = static_cast<size_t>(b);
     const long start = block_starts_[a], end = block_starts_[a + 1] - 1;  // samples from 1
-    const double reach_V = limits_.rate_V_per_s * dt * static_cast<double>(start);
+    // The limiter ramps towards the block's voltage sample by sample (Expand), so the block
+    // may ask for what the rate reaches by its end; bounding it by its start held the
+    // first block to a fifth of the rate limit while the plan counted on the whole of it
+    // for the later blocks.
+    const double reach_V = limits_.rate_V_per_s * dt * static_cast<double>(end);
     (*lo)(b) = std::max(limits_.min_V, applied_V - reach_V);
     (*hi)(b) = std::min(limits_.max_V, applied_V + reach_V);
     if (std::isinf(limits_.max_charge_Vs)) continue;

@@ -42,11 +42,11 @@
 // U0_{B-1}. The base trajectory yhat(U0) is the T-S model's own; only the
 // correction is linear, and replanning every replan_s takes it further (scaling S by the
 // incremental gain at each block's voltage was tried and tracked worse on the rig). Each block is
-// bounded by the voltage range, by what the rate limit reaches from u_k by the block's start, and
-// by the charge limit: |U_b| L_b Ts at most what is left of max_charge_Vs in the window ending with
-// block b, after the applied voltages still in it and the earlier blocks of U0. A plan is simulated
-// as the limits (limits.h) will apply it, sample by sample. The bounded least-squares problem is
-// solved by box_qp.h.
+// bounded by the voltage range, by what the rate limit reaches from u_k by the block's end (the
+// limits ramp to it within the block), and by the charge limit: |U_b| L_b Ts at most what is left
+// of max_charge_Vs in the window ending with block b, after the applied voltages still in it and
+// the earlier blocks of U0. A plan is simulated as the limits (limits.h) will apply it, sample by
+// sample. The bounded least-squares problem is solved by box_qp.h.
 #pragma once
 
 #include <string>
@@ -92,7 +92,7 @@ class PredictiveController {
   // The plan's voltages for samples k+1..k+H as the limits will apply them.
   std::vector<double> Expand(const std::vector<double>& blocks,
                              const CommandLimiter& limiter) const;
-  // Each block's bounds: the range, what the rate limit reaches by the block's start, and
+  // Each block's bounds: the range, what the rate limit reaches by the block's end, and
   // the charge left in the window at its end once the earlier blocks of plan U0 are spent.
   void Bounds(const CommandLimiter& limiter, const Eigen::VectorXd& U0, Eigen::VectorXd* lo,
               Eigen::VectorXd* hi) const;
