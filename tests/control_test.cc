@@ -201,6 +201,44 @@ TEST(BoxQp, SolvesAnUnconstrainedAndABoundedProblem) {
   EXPECT_NEAR(bounded.x(0), 0.25, 1e-12);
 }
 
+// An ill-conditioned programme like a replan's with light move weights (slow responses of
+// neighbouring blocks nearly alike): many variables end at a bound, and the solution must
+// satisfy the KKT conditions, where the cost cannot fall within the box. Releasing every
+// held variable whose gradient pointed inwards at each iteration cycled here without
+// reaching them in 100 iterations, and the controller's plans stayed where they started.
+TEST(BoxQp, ReachesTheOptimumOfAnIllConditionedProblemWithManyBoundsActive) {
+  std::mt19937 random(11);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  const int n = 36, rows = 120;
+  Eigen::MatrixXd A = Eigen::MatrixXd::Zero(rows + n, n);
+  for (int i = 0; i < rows; ++i)
+    for (int b = 0; b < n; ++b)  // smooth, nearly collinear columns: step responses
+      A(i, b) = (i >= b ? 1.0 - std::exp(-0.02 * (i - b + 1)) : 0.0) + 1e-3 * normal(random);
+  for (int b = 0; b < n; ++b) A(rows + b, b) = std::sqrt(1e-5);  // a light ridge
+  Eigen::VectorXd rhs = Eigen::VectorXd::Zero(rows + n);
+  for (int i = 0; i < rows; ++i) rhs(i) = 10.0 * std::sin(0.3 * i) + normal(random);
+  const Eigen::MatrixXd M = A.transpose() * A;
+  const Eigen::VectorXd c = A.transpose() * rhs;
+  const Eigen::VectorXd lo = Eigen::VectorXd::Constant(n, -8.0);
+  const Eigen::VectorXd hi = Eigen::VectorXd::Constant(n, 8.0);
+  const BoxQpResult result = SolveBoxQp(M, c, lo, hi, Eigen::VectorXd::Zero(n));
+  ASSERT_TRUE(result.converged) << result.iterations << " iterations";
+  const Eigen::VectorXd g = M * result.x - c;
+  int at_bound = 0;
+  for (int i = 0; i < n; ++i) {
+    if (result.x(i) <= lo(i)) {
+      EXPECT_GE(g(i), -1e-6) << i;  // the cost rises into the box
+      ++at_bound;
+    } else if (result.x(i) >= hi(i)) {
+      EXPECT_LE(g(i), 1e-6) << i;
+      ++at_bound;
+    } else {
+      EXPECT_NEAR(g(i), 0.0, 1e-6 * std::max(1.0, c.norm())) << i;
+    }
+  }
+  EXPECT_GE(at_bound, 4);
+}
+
 TEST(Controller, RefusesAnUnreachableReferenceBeforeTheFirstCommand) {
   ControllerOptions options;
   options.limits.min_V = 0.0;

@@ -61,8 +61,8 @@ namespace flexid::model::control {
 struct MpcOptions {
   double horizon_s = 60.0;       // prediction horizon, s (> the model's dead time + replan_s)
   double replan_s = 0.5;         // how often the plan is made again (its first block), s (>= Ts)
-  double move_weight = 0.02;     // w_move, mm^2 per V^2
-  double effort_weight = 0.002;  // w_effort, mm^2 per V^2
+  double move_weight = 1e-5;     // w_move, mm^2 per V^2
+  double effort_weight = 1e-6;   // w_effort, mm^2 per V^2
   double terminal_weight = 1.0;  // w_term (dimensionless)
   double disturbance_time_constant_s = 2.0;  // tau_d, s (>= 0)
   double fine_horizon_s = 10.0;  // blocks of replan_s this long past the dead time, s (>= 0)
