@@ -21,8 +21,9 @@
 // |u| dt) and the largest charge in any 220 s window. Then, per plant and reference, the
 // model-based controller's RMSE over the PI's. Deterministic (fixed seeds).
 //
-//   build/bench/control_bench [--svg PATH]   (the rig's multilevel run: reference,
-//                                              measured and voltage, predictive and PI)
+//   build/bench/control_bench [--svg PATH] [--ts-seed N]
+//     --svg      the rig's multilevel run: reference, measured and voltage, predictive and PI
+//     --ts-seed  draw the T-S test plant from seed N (default 7): other draws, other plants
 #include <chrono>
 #include <cmath>
 #include <complex>
@@ -188,11 +189,21 @@ void WritePlot(const std::string& path, const testing::LoopResult& predictive,
 int main(int argc, char** argv) {
   using namespace flexid;
   std::string svg_path;
+  uint64_t ts_seed = 7;
   for (int i = 1; i < argc; ++i) {
     if (std::strcmp(argv[i], "--svg") == 0 && i + 1 < argc) {
       svg_path = argv[++i];
+    } else if (std::strcmp(argv[i], "--ts-seed") == 0 && i + 1 < argc) {
+      const char* text = argv[++i];
+      char* end = nullptr;
+      ts_seed = std::strtoull(text, &end, 10);
+      if (end == text || *end != '\0' || text[0] == '-') {
+        std::fprintf(stderr, "control_bench: --ts-seed \"%s\": not a seed (a whole number >= 0)\n",
+                     text);
+        return 2;
+      }
     } else {
-      std::fprintf(stderr, "usage: control_bench [--svg PATH]\n");
+      std::fprintf(stderr, "usage: control_bench [--svg PATH] [--ts-seed N]\n");
       return 2;
     }
   }
@@ -208,16 +219,17 @@ int main(int argc, char** argv) {
                 rig_model.structure.Describe().c_str());
   }
   {
-    const testing::TsPlant plant = testing::DrawTsPlant(7);
+    const testing::TsPlant plant = testing::DrawTsPlant(ts_seed);
     const testing::TsRecording staircase =
         testing::RecordTsPlant(plant, testing::TsStaircase(80.0), 71);
     const model::GlobalEstimate ts_model = model::IdentifyGlobalTs({staircase.recording});
     plants.push_back({"ts_plant", ts_model.model, plant.noise_std_mm,
                       [plant] { return std::make_unique<testing::TsPlantLoop>(plant, 72); }});
     std::printf(
-        "ts_plant (seed 7, %zu rules, dead time %.2f s): model identified from its "
+        "ts_plant (seed %llu, %zu rules, dead time %.2f s): model identified from its "
         "staircase: %s\n",
-        plant.rules.size(), plant.delay_s, ts_model.structure.Describe().c_str());
+        static_cast<unsigned long long>(ts_seed), plant.rules.size(), plant.delay_s,
+        ts_model.structure.Describe().c_str());
   }
   std::printf("\n%-9s %-12s %-11s %9s %8s %9s %10s %12s\n", "plant", "reference", "controller",
               "RMSE mm", "RMSE %", "V rms", "charge Vs", "peak Vs/220s");
