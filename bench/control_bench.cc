@@ -24,6 +24,8 @@
 //   build/bench/control_bench [--svg PATH] [--ts-seed N]
 //     --svg      the rig's multilevel run: reference, measured and voltage, predictive and PI
 //     --ts-seed  draw the T-S test plant from seed N (default 7): other draws, other plants
+//     --ts-sweep identify the T-S plant's model from its staircase and a square-wave sweep
+//                (0.5 / 4.5 V, 0.01 to 0.4 Hz, 3 cycles each), not the staircase alone
 #include <chrono>
 #include <cmath>
 #include <complex>
@@ -113,6 +115,22 @@ Reference WithLeadIn(const Reference& reference) {
   return Reference(t_s, y_mm, reference.source());
 }
 
+// A square wave between 0.5 and 4.5 V at 0.01, 0.02, 0.05, 0.1, 0.2 and 0.4 Hz, three
+// cycles each, after 10 s at 0 V and before 60 s at 0 V: what a lab records to know the
+// actuator at the frequencies it wants to follow (--ts-sweep).
+testing::TsProtocol SquareSweep() {
+  testing::TsProtocol protocol;
+  size_t at = testing::TsSamplesIn(10.0);
+  for (double frequency_Hz : {0.01, 0.02, 0.05, 0.1, 0.2, 0.4}) {
+    const size_t half = testing::TsSamplesIn(0.5 / frequency_Hz);
+    for (int edge = 0; edge < 6; ++edge, at += half)
+      protocol.holds.push_back({at, edge % 2 == 0 ? 4.5 : 0.5});
+  }
+  protocol.holds.push_back({at, 0.0});
+  protocol.samples = at + testing::TsSamplesIn(60.0) + 1;
+  return protocol;
+}
+
 std::vector<ReferenceCase> References(const PlantCase& plant) {
   const model::TsModel& model = plant.model;
   const model::control::SteadyStateMap steady(model, -8.0, 8.0);
@@ -190,9 +208,12 @@ int main(int argc, char** argv) {
   using namespace flexid;
   std::string svg_path;
   uint64_t ts_seed = 7;
+  bool ts_sweep = false;
   for (int i = 1; i < argc; ++i) {
     if (std::strcmp(argv[i], "--svg") == 0 && i + 1 < argc) {
       svg_path = argv[++i];
+    } else if (std::strcmp(argv[i], "--ts-sweep") == 0) {
+      ts_sweep = true;
     } else if (std::strcmp(argv[i], "--ts-seed") == 0 && i + 1 < argc) {
       const char* text = argv[++i];
       char* end = nullptr;
@@ -203,7 +224,7 @@ int main(int argc, char** argv) {
         return 2;
       }
     } else {
-      std::fprintf(stderr, "usage: control_bench [--svg PATH] [--ts-seed N]\n");
+      std::fprintf(stderr, "usage: control_bench [--svg PATH] [--ts-seed N] [--ts-sweep]\n");
       return 2;
     }
   }
@@ -222,14 +243,16 @@ int main(int argc, char** argv) {
     const testing::TsPlant plant = testing::DrawTsPlant(ts_seed);
     const testing::TsRecording staircase =
         testing::RecordTsPlant(plant, testing::TsStaircase(80.0), 71);
-    const model::GlobalEstimate ts_model = model::IdentifyGlobalTs({staircase.recording});
+    std::vector<model::Recording> recordings = {staircase.recording};
+    if (ts_sweep) recordings.push_back(testing::RecordTsPlant(plant, SquareSweep(), 73).recording);
+    const model::GlobalEstimate ts_model = model::IdentifyGlobalTs(recordings);
     plants.push_back({"ts_plant", ts_model.model, plant.noise_std_mm,
                       [plant] { return std::make_unique<testing::TsPlantLoop>(plant, 72); }});
     std::printf(
         "ts_plant (seed %llu, %zu rules, dead time %.2f s): model identified from its "
-        "staircase: %s\n",
+        "staircase%s: %s\n",
         static_cast<unsigned long long>(ts_seed), plant.rules.size(), plant.delay_s,
-        ts_model.structure.Describe().c_str());
+        ts_sweep ? " and a square-wave sweep" : "", ts_model.structure.Describe().c_str());
   }
   std::printf("\n%-9s %-12s %-11s %9s %8s %9s %10s %12s\n", "plant", "reference", "controller",
               "RMSE mm", "RMSE %", "V rms", "charge Vs", "peak Vs/220s");

@@ -373,23 +373,35 @@ TEST(ControlSafety, TheRigRefusesUnsignedBadlySignedAndStaleCommands) {
   EXPECT_TRUE(applied) << "the valid command was not applied";
 }
 
-TEST(ControlSafety, AnUnreachableReferenceIsRefusedBeforeAnythingIsSent) {
+// flexid-control started with `protocol` and `extra` exits 2 with one line holding
+// `expected` on stderr, and sends nothing.
+void ExpectRefusedBeforeAnythingIsSent(const std::string& protocol,
+                                       const std::vector<std::string>& extra,
+                                       const std::string& expected) {
   const testing::ScratchDir scratch;
   const std::string url = testing::RandomUrl(), key = scratch.File("key");
   auth::LoadOrCreateKeyFile(key);
   BusListener listener(url);
   FakeSource source(listener.lcm());
-  const auto control =
-      StartControl(scratch, url, key, "hold:level=200,duration=60", {"--max-voltage", "5"});
+  const auto control = StartControl(scratch, url, key, protocol, extra);
   EXPECT_EQ(ExitCode(control->Wait(10s)), 2);
   const std::string err = ReadFile(scratch.File("control.err"));
-  EXPECT_NE(err.find("the reference is 200 mm at t = 0 s, outside what the model reaches in "
-                     "steady state within -8 .. 5 V"),
-            std::string::npos)
-      << err;
+  EXPECT_NE(err.find(expected), std::string::npos) << err;
   EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
   std::this_thread::sleep_for(200ms);
   EXPECT_TRUE(listener.commands().empty());
+}
+
+TEST(ControlSafety, AnUnreachableReferenceIsRefusedBeforeAnythingIsSent) {
+  ExpectRefusedBeforeAnythingIsSent("hold:level=200,duration=60", {"--max-voltage", "5"},
+                                    "the reference is 200 mm at t = 0 s, outside what the model "
+                                    "reaches in steady state within -8 .. 5 V");
+}
+
+// A negative penalty is refused before anything is sent, naming the option.
+TEST(ControlSafety, ANegativeWeightIsRefusedNamingTheOption) {
+  ExpectRefusedBeforeAnythingIsSent("hold:level=10,duration=60", {"--move-weight", "-1"},
+                                    "--move-weight must be finite and >= 0 mm^2 per V^2 (got -1");
 }
 
 }  // namespace

@@ -5,7 +5,8 @@
 //                  (--reference REF.csv | --protocol SPEC) [--model MODEL.json]
 //                  [--controller predictive|pi|open_loop] [--rate-hz 10]
 //                  [--min-voltage -8] [--max-voltage 8] [--rate-limit 5]
-//                  [--max-charge 1000] [--charge-window 220] [--horizon 60]
+//                  [--max-charge 1200] [--charge-window 220] [--horizon 60]
+//                  [--move-weight 1e-5] [--effort-weight 1e-6]
 //                  [--stale-after 0.5] [--start-timeout 10] [--key-file PATH]
 //                  [--controller-id ID] [--out RUN.csv]
 //
@@ -84,6 +85,7 @@ struct ControlArgs {
   double rate_Hz = 10.0;
   model::control::ControlLimits limits;
   double horizon_s = 60.0;
+  model::control::MpcOptions mpc_weights;  // move_weight and effort_weight, mm^2 per V^2
   SessionOptions session;
   std::string key_file;
   std::string controller_id;
@@ -144,6 +146,13 @@ model::control::ControllerOptions OptionsFrom(const ControlArgs& args) {
   options.sample_period_s = 1.0 / args.rate_Hz;
   options.limits = args.limits;
   options.mpc.horizon_s = args.horizon_s;
+  for (const auto& [name, weight] : {std::pair{"--move-weight", args.mpc_weights.move_weight},
+                                     std::pair{"--effort-weight", args.mpc_weights.effort_weight}})
+    if (!(weight >= 0.0 && std::isfinite(weight)))
+      throw UsageError(std::string(name) + " must be finite and >= 0 mm^2 per V^2 (got " +
+                       std::to_string(weight) + ")");
+  options.mpc.move_weight = args.mpc_weights.move_weight;
+  options.mpc.effort_weight = args.mpc_weights.effort_weight;
   std::string why;
   if (!options.IsValid(&why)) throw UsageError(why);
   return options;
@@ -347,6 +356,12 @@ int RunControl(ControlArgs args) {
             << args.limits.charge_window_s << " s; stale after " << args.session.stale_after_s
             << " s [url: " << args.lcm_url << "]\n";
   if (const auto* tuning = controller.pi_tuning()) std::cerr << "  " << tuning->Describe() << "\n";
+  if (options.kind != model::control::ControllerKind::kPi) {
+    for (const std::string& rule : model::control::InverseResponseRules(model))
+      std::cerr << "flexid-control: warning: the model has an inverse response (" << rule
+                << "); an inversion with light move penalties can chase it and oscillate: "
+                   "if it does, --move-weight 1e-3 --effort-weight 1e-4\n";
+  }
 
   struct sigaction action = {};
   action.sa_handler = OnStopSignal;
@@ -404,6 +419,13 @@ int main(int argc, char** argv) {
   app.add_option("--charge-window", args.limits.charge_window_s, "The charge window (cycle), s")
       ->capture_default_str();
   app.add_option("--horizon", args.horizon_s, "Prediction horizon of the predictive controller, s")
+      ->capture_default_str();
+  app.add_option("--move-weight", args.mpc_weights.move_weight,
+                 "Predictive controller: penalty on voltage moves, mm^2 per V^2")
+      ->capture_default_str();
+  app.add_option("--effort-weight", args.mpc_weights.effort_weight,
+                 "Predictive controller: penalty on voltage beyond what holds the reference, "
+                 "mm^2 per V^2")
       ->capture_default_str();
   app.add_option("--stale-after", args.session.stale_after_s,
                  "Stop (0 V) after this long without a deflection, s (wall clock)")
