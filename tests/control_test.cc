@@ -5,7 +5,6 @@
 
 #include <cmath>
 #include <random>
-#include <sstream>
 #include <string>
 #include <vector>
 
@@ -238,20 +237,6 @@ TEST(BoxQp, ReachesTheOptimumOfAnIllConditionedProblemWithManyBoundsActive) {
     }
   }
   EXPECT_GE(at_bound, 4);
-}
-
-// The seed's model has no inverse response; a rule whose numerator changes sign between
-// its highest and lowest powers has a zero in the right half-plane, and is named.
-TEST(InverseResponse, NamesTheRulesWithARightHalfPlaneZero) {
-  EXPECT_TRUE(InverseResponseRules(SeedTsModel()).empty());
-  TsModel model = SeedTsModel();
-  model.rules[1].tf.num = {-2.0, 1.0};  // -2 s + 1: a zero at +0.5 1/s
-  const std::vector<std::string> lines = InverseResponseRules(model);
-  ASSERT_EQ(lines.size(), 1u);
-  EXPECT_NE(lines[0].find("zero at +0.5 1/s"), std::string::npos) << lines[0];
-  std::ostringstream rule;
-  rule << "the rule at " << model.rules[1].level_V << " V";
-  EXPECT_EQ(lines[0].rfind(rule.str(), 0), 0u) << lines[0];
 }
 
 TEST(Controller, RefusesAnUnreachableReferenceBeforeTheFirstCommand) {

@@ -356,12 +356,6 @@ int RunControl(ControlArgs args) {
             << args.limits.charge_window_s << " s; stale after " << args.session.stale_after_s
             << " s [url: " << args.lcm_url << "]\n";
   if (const auto* tuning = controller.pi_tuning()) std::cerr << "  " << tuning->Describe() << "\n";
-  if (options.kind != model::control::ControllerKind::kPi) {
-    for (const std::string& rule : model::control::InverseResponseRules(model))
-      std::cerr << "flexid-control: warning: the model has an inverse response (" << rule
-                << "); an inversion with light move penalties can chase it and oscillate: "
-                   "if it does, --move-weight 1e-3 --effort-weight 1e-4\n";
-  }
 
   struct sigaction action = {};
   action.sa_handler = OnStopSignal;

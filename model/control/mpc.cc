@@ -2,12 +2,10 @@
 
 #include <algorithm>
 #include <cmath>
-#include <complex>
 #include <sstream>
 #include <stdexcept>
 
 #include "model/control/box_qp.h"
-#include "model/core/transfer_function.h"
 
 namespace flexid::model::control {
 
@@ -49,22 +47,6 @@ std::vector<long> BlockStarts(long replan, long fine, long horizon) {
 }
 
 }  // namespace
-
-std::vector<std::string> InverseResponseRules(const TsModel& model) {
-  std::vector<std::string> lines;
-  for (const LocalModel& rule : model.rules) {
-    for (const std::complex<double>& zero : Zeros(rule.tf)) {
-      if (zero.real() <= 0.0) continue;
-      std::ostringstream line;
-      line << "the rule at " << rule.level_V << " V: zero at +" << zero.real();
-      if (zero.imag() != 0.0)
-        line << (zero.imag() > 0 ? " + " : " - ") << std::abs(zero.imag()) << "i";
-      line << " 1/s";
-      lines.push_back(line.str());
-    }
-  }
-  return lines;
-}
 
 PredictiveController::PredictiveController(const TsModel& model, const Reference& reference,
                                            const ControlLimits& limits, double sample_period_s,

@@ -71,13 +71,6 @@ struct MpcOptions {
   bool IsValid(std::string* error) const;
 };
 
-// The rules of `model` whose transfer function has a zero in the right half-plane (an
-// inverse response: the deflection first moves against the voltage), one line each, e.g.
-// "the rule at 3.14 V: zero at +0.52 1/s"; empty when there is none. An identified model
-// can carry such a zero from noise; an inversion with light move penalties chases it and
-// the loop can oscillate (README, "Control").
-std::vector<std::string> InverseResponseRules(const TsModel& model);
-
 class PredictiveController {
  public:
   // Throws std::invalid_argument for invalid options (IsValid), an invalid model, or a
