@@ -21,7 +21,7 @@
 // |u| dt) and the largest charge in any 220 s window. Then, per plant and reference, the
 // model-based controller's RMSE over the PI's. Deterministic (fixed seeds).
 //
-//   build/bench/control_bench [--svg PATH] [--ts-seed N]
+//   build/bench/control_bench [--svg PATH] [--ts-seed N] [--ts-sweep]
 //     --svg      the rig's multilevel run: reference, measured and voltage, predictive and PI
 //     --ts-seed  draw the T-S test plant from seed N (default 7): other draws, other plants
 //     --ts-sweep identify the T-S plant's model from its staircase and a square-wave sweep
