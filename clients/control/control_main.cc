@@ -84,8 +84,7 @@ struct ControlArgs {
   std::string controller = "predictive";
   double rate_Hz = 10.0;
   model::control::ControlLimits limits;
-  double horizon_s = 60.0;
-  model::control::MpcOptions mpc_weights;  // move_weight and effort_weight, mm^2 per V^2
+  model::control::MpcOptions mpc;  // --horizon, --move-weight, --effort-weight; the rest default
   SessionOptions session;
   std::string key_file;
   std::string controller_id;
@@ -145,14 +144,12 @@ model::control::ControllerOptions OptionsFrom(const ControlArgs& args) {
     throw UsageError("--rate-hz must be > 0 and <= 1000 (the deflection's sample rate)");
   options.sample_period_s = 1.0 / args.rate_Hz;
   options.limits = args.limits;
-  options.mpc.horizon_s = args.horizon_s;
-  for (const auto& [name, weight] : {std::pair{"--move-weight", args.mpc_weights.move_weight},
-                                     std::pair{"--effort-weight", args.mpc_weights.effort_weight}})
+  for (const auto& [name, weight] : {std::pair{"--move-weight", args.mpc.move_weight},
+                                     std::pair{"--effort-weight", args.mpc.effort_weight}})
     if (!(weight >= 0.0 && std::isfinite(weight)))
       throw UsageError(std::string(name) + " must be finite and >= 0 mm^2 per V^2 (got " +
                        std::to_string(weight) + ")");
-  options.mpc.move_weight = args.mpc_weights.move_weight;
-  options.mpc.effort_weight = args.mpc_weights.effort_weight;
+  options.mpc = args.mpc;
   std::string why;
   if (!options.IsValid(&why)) throw UsageError(why);
   return options;
@@ -412,12 +409,13 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--charge-window", args.limits.charge_window_s, "The charge window (cycle), s")
       ->capture_default_str();
-  app.add_option("--horizon", args.horizon_s, "Prediction horizon of the predictive controller, s")
+  app.add_option("--horizon", args.mpc.horizon_s,
+                 "Prediction horizon of the predictive controller, s")
       ->capture_default_str();
-  app.add_option("--move-weight", args.mpc_weights.move_weight,
+  app.add_option("--move-weight", args.mpc.move_weight,
                  "Predictive controller: penalty on voltage moves, mm^2 per V^2")
       ->capture_default_str();
-  app.add_option("--effort-weight", args.mpc_weights.effort_weight,
+  app.add_option("--effort-weight", args.mpc.effort_weight,
                  "Predictive controller: penalty on voltage beyond what holds the reference, "
                  "mm^2 per V^2")
       ->capture_default_str();

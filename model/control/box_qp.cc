@@ -17,9 +17,9 @@ BoxQpResult SolveBoxQp(const Eigen::MatrixXd& M, const Eigen::VectorXd& c,
   for (Eigen::Index i = 0; i < n; ++i)
     held[static_cast<size_t>(i)] = x(i) <= lo(i) || x(i) >= hi(i);
   const double scale = std::max(1.0, M.diagonal().cwiseAbs().maxCoeff());
+  Eigen::VectorXd g = M * x - c;  // the gradient at x, kept with x
   for (int iteration = 0; iteration < max_iterations; ++iteration) {
     result.iterations = iteration + 1;
-    const Eigen::VectorXd g = M * x - c;
     std::vector<Eigen::Index> free;
     for (Eigen::Index i = 0; i < n; ++i)
       if (!held[static_cast<size_t>(i)]) free.push_back(i);
@@ -54,17 +54,17 @@ BoxQpResult SolveBoxQp(const Eigen::MatrixXd& M, const Eigen::VectorXd& c,
       const Eigen::Index i = free[blocking];
       x(i) = step(blocking) > 0.0 ? hi(i) : lo(i);
       held[static_cast<size_t>(i)] = true;
-      continue;
     }
+    g = M * x - c;
+    if (blocking >= 0) continue;
     // At the working set's minimiser: release the held variable whose gradient pulls it
     // inwards most (its multiplier has the wrong sign). None: the KKT conditions hold.
-    const Eigen::VectorXd g_new = M * x - c;
     const double tolerance = 1e-12 * scale * std::max(1.0, x.cwiseAbs().maxCoeff());
     Eigen::Index release = -1;
     double pull = tolerance;
     for (Eigen::Index i = 0; i < n; ++i) {
       if (!held[static_cast<size_t>(i)] || !(lo(i) < hi(i))) continue;
-      const double inwards = x(i) <= lo(i) ? -g_new(i) : g_new(i);
+      const double inwards = x(i) <= lo(i) ? -g(i) : g(i);
       if (inwards > pull) {
         pull = inwards;
         release = i;
