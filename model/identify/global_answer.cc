@@ -178,12 +178,12 @@ void GlobalSearch::Intervals() {
 
 // What the data cannot decide, in words.
 void GlobalSearch::Explain() {
-  result.reason =
-      raising ? std::string("not chosen")
-              : "chosen on held-out data (" +
-                    std::string(problem.series.size() >= 2 ? "leave one recording out"
-                                                           : "first and second half in turn") +
-                    "): " + current.Describe();
+  result.reason = raising ? std::string("not chosen")
+                          : "chosen on held-out data (" +
+                                std::string(problem.series.size() >= 2
+                                                ? "alternate tenths of every recording in turn"
+                                                : "first and second half in turn") +
+                                "): " + current.Describe();
   for (const std::string& r : reasons) result.reason += "; " + r;
   if (!result.undetermined.empty()) {
     std::string names;

@@ -61,9 +61,9 @@
 // over f samples, more than 1.5 times the noise's share there) or its model does not
 // carry over (the error on every sample above twice the coarse held-out error).
 //
-// Structure, chosen on held-out data (leave one recording out; with one recording, ten
-// blocks in time, alternately fitted and held out, in turn; each fold starts from the
-// all-data fit):
+// Structure, chosen on held-out data (each recording cut into ten blocks in time,
+// alternately fitted and held out, in turn: both folds see every recording's protocol;
+// each fold starts from the all-data fit):
 //   1. a pilot: orders 2/1 (unless given), a gain per visited level, one set of dynamics,
 //      premise |u(t - T)|; where no such fit switches plausibly, one linear model (and
 //      stage 6 then offers few smooth rules against it);
