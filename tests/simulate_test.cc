@@ -4,6 +4,8 @@
 
 #include <cmath>
 #include <random>
+#include <span>
+#include <vector>
 
 #include "model/core/presets.h"
 #include "test_util.h"
@@ -207,6 +209,26 @@ TEST(Simulate, ParallelRulesWithEqualDynamicsAreAHammersteinModel) {
   ExpectVectorsNear(SimulateUniform(model, 0.1, u), SimulateUniform(unit, 0.1, mapped), 1e-12);
   // Its frozen model at 4 V is the sum of the halves: DC gain 2 mm/V.
   EXPECT_NEAR(DcGain(FrozenModelAt(model, 4.0)), 2.0, 1e-12);
+}
+
+// A continuous input moves the operating point on most samples. On a long one each point
+// is found in a flat table over the scheduling values, on a short one by hashing
+// (simulate.cc, OperatingPointCache): the same points, so the same output bit for bit.
+TEST(Simulate, OperatingPointsAreTheSameWhetherIndexedOrHashed) {
+  std::vector<double> u(20000);
+  for (size_t k = 0; k < u.size(); ++k) {
+    const double t_s = 0.1 * static_cast<double>(k);
+    u[k] = 4.0 + 3.9 * std::sin(0.002 * t_s * t_s) + ((k % 7 == 0) ? -8.0 : 0.0);
+  }
+  const std::span<const double> head(u.data(), 1000);  // 15,803 slots > 1,000 + 1,024: hashed
+  for (TsRealisation realisation : {TsRealisation::kFrozen, TsRealisation::kParallel}) {
+    TsModel model = SeedTsModel();
+    model.realisation = realisation;
+    const std::vector<double> indexed = SimulateUniform(model, 0.1, u);
+    const std::vector<double> hashed = SimulateUniform(model, 0.1, head);
+    for (size_t k = 0; k < hashed.size(); ++k)
+      ASSERT_EQ(indexed[k], hashed[k]) << "sample " << k << ", " << TsRealisationName(realisation);
+  }
 }
 
 TEST(Simulate, StartsInSteadyStateWhenAsked) {

@@ -39,6 +39,69 @@ double OperatingZ(Scheduler& scheduler, double voltage_V, double resolution_V) {
   return std::round(scheduler.Next(voltage_V) / resolution_V) * resolution_V;
 }
 
+// What is computed per operating point (a discretisation, memberships), cached by
+// q = round(z / resolution): the operating point is z = q * resolution, as OperatingZ
+// gives it. A continuously varying input (a chirp in kV) moves q on most samples, so the
+// slot is found by indexing a flat table over q in [-q_max, q_max] when the input's range
+// is known and the table is small next to the samples simulated; by hashing otherwise.
+// At most kMaxOperatingPoints entries (about 8 MB of discretisations): then it starts
+// afresh, and pointers from earlier calls of At are invalid.
+constexpr size_t kMaxOperatingPoints = 32768;
+
+template <typename Entry>
+class OperatingPointCache {
+ public:
+  // max_abs_z_V < 0: the range is unknown (hashing only).
+  OperatingPointCache(double resolution_V, double max_abs_z_V, size_t samples)
+      : resolution_V_(resolution_V) {
+    if (!(max_abs_z_V >= 0.0)) return;
+    const double q_max = std::ceil(max_abs_z_V / resolution_V) + 1.0;
+    const double slots = 2.0 * q_max + 1.0;
+    if (slots > static_cast<double>(std::min(kMaxOperatingPoints, samples + 1024))) return;
+    q_max_ = static_cast<long>(q_max);
+    table_.assign(static_cast<size_t>(slots), nullptr);
+  }
+
+  // The entry for the operating point q (a whole number), made by make(z) if new.
+  template <typename Make>
+  const Entry& At(double q, const Make& make) {
+    if (q_max_ >= 0 && std::abs(q) <= static_cast<double>(q_max_)) {
+      Entry*& slot = table_[static_cast<size_t>(static_cast<long>(q) + q_max_)];
+      if (slot == nullptr) slot = &Insert(q, make);
+      return *slot;
+    }
+    const auto it = map_.find(std::bit_cast<uint64_t>(q));
+    return it != map_.end() ? it->second : Insert(q, make);
+  }
+
+ private:
+  template <typename Make>
+  Entry& Insert(double q, const Make& make) {
+    if (map_.size() >= kMaxOperatingPoints) {
+      map_.clear();
+      std::fill(table_.begin(), table_.end(), nullptr);
+    }
+    return map_.emplace(std::bit_cast<uint64_t>(q), make(q * resolution_V_)).first->second;
+  }
+
+  double resolution_V_;
+  long q_max_ = -1;
+  std::vector<Entry*> table_;
+  std::unordered_map<uint64_t, Entry> map_;  // node-based: entries stay where they are
+};
+
+// The operating point's index q for a scheduling value (z = q * resolution).
+double OperatingIndex(Scheduler& scheduler, double voltage_V, double resolution_V) {
+  return std::round(scheduler.Next(voltage_V) / resolution_V);
+}
+
+// Largest |u| of an input and of the voltage before it: what bounds |z|.
+double MaxAbs(std::span<const double> u, double before_V) {
+  double top = std::abs(before_V);
+  for (double v : u) top = std::max(top, std::abs(v));
+  return top;
+}
+
 // kAbsVoltageDelayed: the premise at sample time t_k is the voltage in force at
 // t_k - delay, i.e. sample k - ceil(delay / dt) on a uniform grid.
 long PremiseDelaySamples(const TsModel& model, double dt_s) {
@@ -157,14 +220,7 @@ void RunUniform(const TsModel& model, double dt_s, std::span<const double> u,
   const double* up = padded.data() + pad;
 
   const PreparedRules prepared = PrepareRules(model);
-  std::unordered_map<uint64_t, UniformEntry<N>> cache;
-  auto entry_for = [&](double z) -> const UniformEntry<N>& {
-    const uint64_t key = std::bit_cast<uint64_t>(z);
-    auto it = cache.find(key);
-    if (it != cache.end()) return it->second;
-    if (cache.size() >= 32768) cache.clear();  // bounds memory (about 8 MB)
-    return cache.emplace(key, MakeUniformEntry<N>(model, prepared, z, dt_s)).first->second;
-  };
+  auto make_entry = [&](double z) { return MakeUniformEntry<N>(model, prepared, z, dt_s); };
 
   Scheduler scheduler(model);
   Vec x = InitialState(
@@ -175,7 +231,7 @@ void RunUniform(const TsModel& model, double dt_s, std::span<const double> u,
 
   if (m == 1) {
     // One rule: one discretisation, the tightest loop.
-    const UniformEntry<N> e = entry_for(0.0);  // one rule: every z gives the same model
+    const UniformEntry<N> e = make_entry(0.0);  // one rule: every z gives the same model
     const long d = e.delay_samples;
     for (long k = 0; k < count; ++k) {
       const double u_now = up[k - d], u_prev = up[k - d - 1];
@@ -185,7 +241,8 @@ void RunUniform(const TsModel& model, double dt_s, std::span<const double> u,
     if (memberships) std::fill(memberships->begin(), memberships->end(), 1.0);
     return;
   }
-  uint64_t last_key = ~uint64_t{0};
+  OperatingPointCache<UniformEntry<N>> cache(resolution_V, MaxAbs(u, u_before), u.size());
+  double last_q = std::numeric_limits<double>::quiet_NaN();
   const UniformEntry<N>* e = nullptr;
   // The scheduler gives the same z for a repeated voltage (held |u| included), and lab
   // inputs hold each voltage for many samples: z is computed only when the voltage moves.
@@ -194,17 +251,16 @@ void RunUniform(const TsModel& model, double dt_s, std::span<const double> u,
     const double raw_V = up[k - premise_delay];
     const bool moved = e == nullptr || raw_V != last_raw_V;
     last_raw_V = raw_V;
-    const uint64_t key =
-        moved ? std::bit_cast<uint64_t>(OperatingZ(scheduler, raw_V, resolution_V)) : last_key;
-    if (key != last_key) {
+    const double q = moved ? OperatingIndex(scheduler, raw_V, resolution_V) : last_q;
+    if (!(q == last_q)) {
       auto delayed = [&](const UniformEntry<N>* p) {
         return p->fractional ? up[k - p->delay_samples - 1] : up[k - p->delay_samples];
       };
       const bool switching = e != nullptr && N != 0;
       if (switching) AddMarkovTerm(e->remap, delayed(e), +1.0, &x);
-      e = &entry_for(std::bit_cast<double>(key));
+      e = &cache.At(q, make_entry);
       if (switching) AddMarkovTerm(e->remap, delayed(e), -1.0, &x);
-      last_key = key;
+      last_q = q;
     }
     const long d = e->delay_samples;
     const double u_now = up[k - d], u_prev = up[k - d - 1];
@@ -243,28 +299,35 @@ void DispatchUniform(const TsModel& model, double dt_s, std::span<const double> 
 // simulation is the exact single-model one, dead time included.
 class ParallelShares {
  public:
-  ParallelShares(const TsModel& model, double resolution_V)
-      : model_(model), scheduler_(model), resolution_V_(resolution_V) {}
+  // max_abs_V, samples: the input's largest |u| and length when known (OperatingPointCache).
+  ParallelShares(const TsModel& model, double resolution_V, double max_abs_V = -1.0,
+                 size_t samples = 0)
+      : model_(model),
+        scheduler_(model),
+        resolution_V_(resolution_V),
+        cache_(resolution_V, max_abs_V, samples) {}
 
-  // mu(z) for the voltage u (cached by z).
+  // mu(z) for the voltage u (cached by z; the scheduler gives the same z for a repeated
+  // voltage, held |u| included).
   const std::vector<double>& Memberships(double voltage_V) {
-    const double z = OperatingZ(scheduler_, voltage_V, resolution_V_);
-    const uint64_t key = std::bit_cast<uint64_t>(z);
-    auto it = cache_.find(key);
-    if (it == cache_.end()) {
-      if (cache_.size() >= 32768) cache_.clear();
+    if (last_ != nullptr && voltage_V == last_voltage_V_) return *last_;
+    const double q = OperatingIndex(scheduler_, voltage_V, resolution_V_);
+    last_voltage_V_ = voltage_V;
+    last_ = &cache_.At(q, [this](double z) {
       std::vector<double> mu;
       NormalisedMemberships(model_, z, &mu);
-      it = cache_.emplace(key, std::move(mu)).first;
-    }
-    return it->second;
+      return mu;
+    });
+    return *last_;
   }
 
  private:
   const TsModel& model_;
   Scheduler scheduler_;
   double resolution_V_;
-  std::unordered_map<uint64_t, std::vector<double>> cache_;
+  OperatingPointCache<std::vector<double>> cache_;
+  double last_voltage_V_ = 0.0;
+  const std::vector<double>* last_ = nullptr;
 };
 
 // Options for rule i's simulation: the state before the first sample is its share of
@@ -279,7 +342,8 @@ void ParallelUniform(const TsModel& model, double dt_s, std::span<const double> 
                      const SimulationOptions& options, double* y,
                      std::vector<double>* memberships) {
   const size_t m = model.rules.size(), n = u.size();
-  ParallelShares shares(model, options.scheduling_resolution_V);
+  ParallelShares shares(model, options.scheduling_resolution_V,
+                        MaxAbs(u, options.initial_voltage_V), n);
   const std::vector<double> before = shares.Memberships(options.initial_voltage_V);
   std::vector<std::vector<double>> drive(m, std::vector<double>(n));
   if (memberships) memberships->resize(n * m);
