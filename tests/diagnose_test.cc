@@ -66,6 +66,33 @@ TEST(DiagnoseConcealed, NamesEveryShippedRecordingsEffect) {
   }
 }
 
+// What the final model leaves on the held-out samples beyond 3 times the noise is reported
+// as an unexplained misfit that nothing in the catalogue resembles: a clean recording
+// against its own model leaves nothing; against the same model 3 s late, no effect of the
+// catalogue explains the error, and a verdict alone would not say so.
+TEST(DiagnoseLeftOver, AHeldOutErrorNoEffectExplainsIsReported) {
+  const model::Recording rec =
+      model::ReadRecordingCsv(std::string(FLEXID_SOURCE_DIR) + "/examples/concealed/rec-02.csv");
+  model::TsModel trusted = model::AsTsModel(
+      model::ReadModelFile(std::string(FLEXID_SOURCE_DIR) + "/examples/seed-8V.json"));
+  auto left_over = [](const model::Diagnosis& d) {
+    for (const model::Misfit& m : d.unexplained)
+      if (m.resembles.empty()) return &m;
+    return static_cast<const model::Misfit*>(nullptr);
+  };
+  const model::Diagnosis right = model::Diagnose(rec, trusted);
+  EXPECT_EQ(left_over(right), nullptr);
+
+  trusted.rules[0].tf.delay_s += 3.0;
+  const model::Diagnosis late = model::Diagnose(rec, trusted);
+  const model::Misfit* misfit = left_over(late);
+  ASSERT_NE(misfit, nullptr) << "verdict " << late.verdict;
+  EXPECT_NE(misfit->explanation.find("times the sensor noise"), std::string::npos)
+      << misfit->explanation;
+  EXPECT_EQ(misfit->where.size(), late.heldout.size());
+  EXPECT_GT(misfit->rms_mm, 3.0 * late.noise_std_mm);
+}
+
 TEST(DiagnoseCatalogue, AugmentationsRoundTripAndBadOnesAreNamed) {
   for (model::EffectKind kind : model::AllEffects()) {
     model::Effect e{kind, {}};

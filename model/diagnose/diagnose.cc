@@ -27,6 +27,9 @@ namespace {
 // Step-timing nuisance regressors at most (Diagnose): bounds their matrix to 64 doubles a
 // sample (39 MB for 77,000 samples).
 constexpr size_t kMaxTimedSteps = 64;
+// A held-out error of the final model beyond this many noise deviations is reported as an
+// unexplained misfit (Diagnoser::ReportWhatIsLeft).
+constexpr double kLeftOverToNoise = 3.0;
 
 }  // namespace
 
@@ -71,6 +74,29 @@ struct Diagnoser {
   FitResult current;  // the model to beat: the baseline, then with the findings
   std::vector<EffectKind> chosen;
   std::vector<CandidateReport> round_reports;
+
+  // What the final model (the baseline with the findings) leaves on the held-out samples:
+  // beyond kLeftOverToNoise times the noise, an unexplained misfit that no entry of the
+  // catalogue resembles. A verdict "none" beside a held-out error many times the noise
+  // would read as "the model is fine".
+  void ReportWhatIsLeft() {
+    const double left_mm = RmsOver(Residual(rec.deflection_mm, current.prediction), data.heldout);
+    if (!(left_mm > kLeftOverToNoise * data.noise_mm)) return;
+    Misfit misfit;
+    misfit.rms_mm = std::sqrt(left_mm * left_mm - data.noise_mm * data.noise_mm);
+    misfit.where = result.heldout;
+    misfit.explanation =
+        model_words + (result.findings.empty() ? "" : " with what was found") +
+        " predicts the held-out samples at " + Mm(left_mm) +
+        Format(", %.1f times the sensor noise", left_mm / data.noise_mm) +
+        ", and no effect of the catalogue explains the rest (" + Mm(misfit.rms_mm) +
+        " beyond the noise): " +
+        (trusted_model ? "the model itself is off there, or the actuator shows physics the "
+                         "catalogue does not hold"
+                       : "the fitted samples did not determine a model that carries over to "
+                         "them, or the actuator shows physics the catalogue does not hold");
+    result.unexplained.push_back(std::move(misfit));
+  }
 
   Diagnoser(const std::vector<Recording>& recordings, const std::optional<TsModel>& trusted,
             const DiagnoseOptions& diagnose_options)
@@ -628,6 +654,7 @@ struct Diagnoser {
       result.absorbed = ReadAgainstPhysics(
           current.model.refit ? *current.model.refit : result.baseline_model, data.noise_mm);
     }
+    ReportWhatIsLeft();
     FixScales();
     result.verdict = result.findings.empty() ? "none" : result.findings.front().effect;
     result.augmented_mm = result.findings.empty() ? result.baseline_mm : current.prediction;

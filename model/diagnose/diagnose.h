@@ -74,6 +74,9 @@
 //     they hold). One more
 //     effect may then be added on top of it by the same tests (forward selection, at most
 //     max_effects), the earlier effects refitted with it.
+//     What the final model still misses on the held-out samples beyond 3 times the noise
+//     is reported as an unexplained misfit that no catalogue entry resembles (a verdict
+//     "none" beside it does not mean the model is right there).
 //  6. Without a trusted model, the identified baseline as refitted with the findings is
 //     also read against the physics chain (Eqs. 11-13: a step response that rises without
 //     falling back): a fall-back is reported (Absorbed), never named: it has no held-out
@@ -167,8 +170,10 @@ struct Absorbed {
 // Something a candidate effect would explain (it passed every test of the evidence) whose
 // size the data do not determine: reported where it is, never as a named effect.
 struct Misfit {
-  std::string resembles;  // the effect whose model would explain it
-  double rms_mm = 0.0;    // what that model adds, over the samples it touches
+  // The effect whose model would explain it; empty for what the final model leaves on the
+  // held-out samples beyond 3 times the noise, which nothing in the catalogue explains.
+  std::string resembles;
+  double rms_mm = 0.0;  // what that model adds, over the samples it touches
   std::vector<TimeSpan> where;
   std::string explanation;
 };
