@@ -317,6 +317,12 @@ TEST(DiagnosisReport, ShowsUnexplainedMisfitsOnlyWhenThereAreSome) {
   EXPECT_NE(html.find("Unexplained misfits"), std::string::npos);
   EXPECT_NE(html.find("<td>electrolysis_saturation</td>"), std::string::npos);
   EXPECT_NE(html.find("not determined &lt;i&gt;"), std::string::npos);
+  // What the final model leaves on the held-out samples resembles no effect.
+  misfit.resembles.clear();
+  e.diagnosis.unexplained.push_back(misfit);
+  EXPECT_NE(DiagnosisReportHtml({e.recording}, e.diagnosis, "r")
+                .find("<td>nothing in the catalogue</td>"),
+            std::string::npos);
 }
 
 TEST(DiagnosisReport, ParameterTableShowsValueAndHalfWidth) {

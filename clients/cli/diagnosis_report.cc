@@ -383,14 +383,16 @@ std::string AbsorbedSection(const model::Diagnosis& diagnosis) {
   return html + "</table>\n";
 }
 
-// Misfits a candidate would explain but whose size the data do not determine: never named.
+// Misfits a candidate would explain but whose size the data do not determine, and what the
+// final model leaves on the held-out samples (resembling nothing): never named.
 std::string UnexplainedSection(const model::Diagnosis& diagnosis) {
   if (diagnosis.unexplained.empty()) return "";
   std::string html = "<h2>Unexplained misfits</h2>\n<table>\n" +
                      HeaderRow({"resembles", "RMS (mm)", "where", "explanation"});
   for (const auto& m : diagnosis.unexplained)
-    html += "<tr>" + Cell(Html(m.resembles)) + NumberCell(Number(m.rms_mm)) +
-            Cell(Spans(m.where, diagnosis)) + Cell(Html(m.explanation)) + "</tr>\n";
+    html += "<tr>" + Cell(Html(m.resembles.empty() ? "nothing in the catalogue" : m.resembles)) +
+            NumberCell(Number(m.rms_mm)) + Cell(Spans(m.where, diagnosis)) +
+            Cell(Html(m.explanation)) + "</tr>\n";
   return html + "</table>\n";
 }
 
