@@ -26,6 +26,7 @@
 #include <string>
 #include <vector>
 
+#include "model/core/metrics.h"
 #include "model/core/simulate.h"
 #include "model/identify/identify_global.h"
 #include "ts_plant.h"
@@ -45,12 +46,8 @@ flexid::testing::TsProtocol BetweenLevels(uint64_t seed, double duration_s = 600
 
 // RMSE of a model's prediction of a recording against its noise-free deflection.
 double RmseMm(const flexid::model::TsModel& model, const flexid::testing::TsRecording& check) {
-  const std::vector<double> predicted =
-      flexid::model::Simulate(model, check.recording.t_s, check.recording.voltage_V);
-  double squares = 0.0;
-  for (size_t k = 0; k < predicted.size(); ++k)
-    squares += (predicted[k] - check.clean_mm[k]) * (predicted[k] - check.clean_mm[k]);
-  return std::sqrt(squares / static_cast<double>(predicted.size()));
+  return flexid::model::Rmse(check.clean_mm, flexid::model::Simulate(model, check.recording.t_s,
+                                                                     check.recording.voltage_V));
 }
 
 }  // namespace

@@ -34,18 +34,13 @@ void CheckSeries(std::span<const double> t_s, std::span<const double> voltage_V)
   }
 }
 
-// Scheduling value used to pick the operating point (see kSchedulingResolution_V).
-double OperatingZ(Scheduler& scheduler, double voltage_V, double resolution_V) {
-  return std::round(scheduler.Next(voltage_V) / resolution_V) * resolution_V;
-}
-
 // What is computed per operating point (a discretisation, memberships), cached by
-// q = round(z / resolution): the operating point is z = q * resolution, as OperatingZ
-// gives it. A continuously varying input (a chirp in kV) moves q on most samples, so the
-// slot is found by indexing a flat table over q in [-q_max, q_max] when the input's range
-// is known and the table is small next to the samples simulated; by hashing otherwise.
-// At most kMaxOperatingPoints entries (about 8 MB of discretisations): then it starts
-// afresh, and pointers from earlier calls of At are invalid.
+// q = round(z / resolution): the operating point is z = q * resolution (OperatingZ). A
+// continuously varying input (a chirp in kV) moves q on most samples, so the slot is found
+// by indexing a flat table over q in [-q_max, q_max] when the input's range is known and
+// the table is small next to the samples simulated; by hashing otherwise. At most
+// kMaxOperatingPoints entries (about 8 MB of discretisations): then it starts afresh, and
+// pointers from earlier calls of At are invalid.
 constexpr size_t kMaxOperatingPoints = 32768;
 
 template <typename Entry>
@@ -93,6 +88,11 @@ class OperatingPointCache {
 // The operating point's index q for a scheduling value (z = q * resolution).
 double OperatingIndex(Scheduler& scheduler, double voltage_V, double resolution_V) {
   return std::round(scheduler.Next(voltage_V) / resolution_V);
+}
+
+// Scheduling value used to pick the operating point (see kSchedulingResolution_V).
+double OperatingZ(Scheduler& scheduler, double voltage_V, double resolution_V) {
+  return OperatingIndex(scheduler, voltage_V, resolution_V) * resolution_V;
 }
 
 // Largest |u| of an input and of the voltage before it: what bounds |z|.
