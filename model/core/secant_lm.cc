@@ -156,7 +156,14 @@ SecantLmResult SolveSecantLm(const std::function<bool(const double*, double*)>& 
       mu *= std::max(1.0 / 3.0, 1.0 - std::pow(2.0 * rho - 1.0, 3));
       nu = 2.0;
       gradient = jacobian.transpose() * f;
-      if (decrease <= options.function_tolerance * (cost + decrease) && converged()) break;
+      // A small decrease refreshes the whole Jacobian but does not end the fit: the fit
+      // runs until the step or the gradient vanishes on a fresh Jacobian, or for
+      // max_iterations. Measured: ending it here, once a step from a fresh Jacobian lowers
+      // the cost by less than 1e-7 (or 1e-9, 1e-11), made identification 10-25 % faster
+      // but moved its choice of structure on held-out data, and the independent plants'
+      // fresh recordings were predicted worse: the worst of the six fits that visit every
+      // level went from 0.48 to 2.31 times the noise (0.66 at 1e-9, 0.82 at 1e-11).
+      if (decrease <= options.small_decrease * (cost + decrease)) difference_all();
       continue;
     }
     if (updates >= kStaleAfter) {

@@ -25,9 +25,10 @@
 namespace flexid::model {
 
 struct SecantLmOptions {
-  int max_iterations = 60;             // steps tried, accepted or not
-  double function_tolerance = 1e-7;    // stop when an accepted step lowers the cost by less,
-                                       // relatively
+  int max_iterations = 60;  // steps tried, accepted or not
+  // An accepted step that lowers the cost by less than this, relatively, has the whole
+  // Jacobian differenced again (it does not end the fit: see secant_lm.cc).
+  double small_decrease = 1e-7;
   double parameter_tolerance = 1e-10;  // stop when the step is this small, relatively
   double difference_step = 1e-6;       // relative forward-difference step (at least this)
 };
