@@ -77,6 +77,7 @@ Service::Service(Config c, std::string path)
     spdlog::warn("trials left recording by an earlier run marked interrupted [count: {}]",
                  interrupted);
   next_trial_id = db.LastTrialId() + 1;
+  stored_latest_utime = db.LatestTrialUtime().value_or(kNoTime);
   storage::SampleWriterOptions options;
   options.commit_interval = std::chrono::milliseconds(config.commit_interval_ms);
   options.thread_nice = kBackgroundNice;

@@ -2,6 +2,7 @@
 // methods that change data (lcmtypes/message_auth.h), and the table of methods.
 #include "daemon/rpc_methods.h"
 
+#include <algorithm>
 #include <flexid/rpc_reply_t.hpp>
 
 #include "bus/clock.h"
@@ -210,8 +211,9 @@ ActuatorState* Service::OwnedActuatorArgument(const nlohmann::json& args) {
 RpcOutcome Service::RpcStatus(const flexid::rpc_request_t&, const nlohmann::json&) {
   const Counters c = Snapshot();
   // A source that starts again (flexid-rig) continues its message time after this one,
-  // so that flexidd does not see its clock jump back; null before any sample.
-  const int64_t latest_utime = LatestMessageUtime();
+  // so that flexidd does not see its clock jump back: the latest sample seen since the
+  // start, or stored before it (after a restart); null with neither.
+  const int64_t latest_utime = std::max(LatestMessageUtime(), stored_latest_utime);
   // Several daemons (daemon/ownership.h): what this one records, and whom it heard.
   nlohmann::json owned = nlohmann::json::array();
   for (const auto& [id, state] : actuators)

@@ -98,6 +98,10 @@ struct Service {
   // Trial ids are handed out here, on the loop, from the highest one in the file: a trial
   // has its id before the writer has stored it.
   int64_t next_trial_id = 1;
+  // The latest time the file's trials reached when flexidd started (kNoTime: none): the
+  // status reply's latest_utime is never before it, so that a source that starts again
+  // after a restart continues message time after what is stored.
+  int64_t stored_latest_utime = kNoTime;
   // What the loop does once a write is committed or refused (replies that wait for it).
   std::multimap<uint64_t, std::function<void(const storage::WriteOutcome&)>> on_written;
   uint64_t last_ticket = 0;       // of the last write the loop queued

@@ -147,6 +147,9 @@ class Database {
                    int64_t start_utime);
   // The highest trial id stored (0: none).
   int64_t LastTrialId();
+  // The latest time any trial stored reaches (its end, or its start while it records);
+  // nullopt without trials.
+  std::optional<int64_t> LatestTrialUtime();
   // Sets the end time and the final state (kComplete or kInterrupted). Throws if the
   // trial does not exist or state is kRecording.
   void EndTrial(int64_t trial_id, int64_t end_utime, TrialState state);

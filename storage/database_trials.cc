@@ -166,6 +166,12 @@ void Database::InsertTrial(int64_t trial_id, const std::string& actuator_id,
 
 int64_t Database::LastTrialId() { return QueryInt(Handle(), path_, "SELECT max(id) FROM trials"); }
 
+std::optional<int64_t> Database::LatestTrialUtime() {
+  Statement select(Handle(), path_, "SELECT max(max(start_utime, end_utime)) FROM trials");
+  if (!select.Step() || select.IsNull(0)) return std::nullopt;
+  return select.Int64(0);
+}
+
 void Database::EndTrial(int64_t trial_id, int64_t end_utime, TrialState state) {
   sqlite3* db = Handle();
   if (state == TrialState::kRecording)

@@ -122,5 +122,49 @@ TEST(RigLive, RunsInARowContinueMessageTimeAndCompleteTheirTrials) {
   EXPECT_EQ(status.value("rejected_out_of_order", int64_t{-1}), 0) << status.dump(2);
 }
 
+// flexidd restarted between two runs: its status still says where message time stands
+// (the stored trials' latest time), so the second run continues after the first trial
+// instead of starting at the wall clock, a minute of message time before that trial's end.
+TEST(RigLive, AfterARestartARunContinuesAfterTheStoredTrials) {
+  const testing::ScratchDir scratch;
+  const std::string protocol =
+      " --actuator S1 --protocol step:level=2,duration=60 --speed 200 "
+      "--noise-mm 0.02 --trial-control --key-file '";
+  int64_t first_end_utime = 0;
+  {
+    LiveDaemon daemon(scratch.path());
+    ASSERT_TRUE(daemon.ready());
+    const ProcessResult first =
+        testing::RunCommand(std::string(FLEXID_RIG_BINARY) + " --lcm '" + daemon.url() + "'" +
+                                protocol + daemon.key_file().string() + "'",
+                            scratch.path());
+    ASSERT_EQ(first.exit_code, 0) << first.err;
+    const nlohmann::json trials = FinishedTrials(daemon, 1);
+    ASSERT_EQ(trials.size(), 1u) << trials.dump(2);
+    first_end_utime = trials[0].at("end_utime").get<int64_t>();
+    // The accelerated run ran ahead of the wall clock: a restart at the wall clock would
+    // start before this trial's end.
+    ASSERT_GT(first_end_utime, bus::WallClockUtime() + 30'000'000);
+  }
+  LiveDaemon daemon(scratch.path());  // the same file, a new process
+  ASSERT_TRUE(daemon.ready());
+  const nlohmann::json status = Status(daemon);
+  ASSERT_TRUE(status.contains("latest_utime") && status["latest_utime"].is_number_integer())
+      << status.dump(2);
+  EXPECT_EQ(status["latest_utime"].get<int64_t>(), first_end_utime);
+
+  const ProcessResult second =
+      testing::RunCommand(std::string(FLEXID_RIG_BINARY) + " --lcm '" + daemon.url() + "'" +
+                              protocol + daemon.key_file().string() + "'",
+                          scratch.path());
+  ASSERT_EQ(second.exit_code, 0) << second.err;
+  EXPECT_NE(second.err.find(kContinued), std::string::npos) << second.err;
+  const nlohmann::json trials = FinishedTrials(daemon, 2);
+  ASSERT_EQ(trials.size(), 2u) << trials.dump(2);
+  // Newest first: the second trial starts 1 s (kRestartGap_s) after the first one's end.
+  EXPECT_EQ(trials[0].at("start_utime").get<int64_t>(), first_end_utime + 1'000'000);
+  for (const auto& trial : trials) EXPECT_EQ(trial.value("state", ""), "complete") << trial.dump();
+}
+
 }  // namespace
 }  // namespace flexid

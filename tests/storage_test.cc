@@ -202,6 +202,18 @@ TEST(Database, AModelKeepsItsLineage) {
 
 // --- actuators and trials ----------------------------------------------------------
 
+// What a restarted flexidd's status reports as the latest message time before any sample.
+TEST(Database, TheLatestTrialUtimeIsTheLatestStartOrEnd) {
+  ScratchDir dir;
+  Database db = Database::Open(dir.File("a.db"));
+  EXPECT_FALSE(db.LatestTrialUtime().has_value());
+  const int64_t first = db.StartTrial("S1", "step:level=2,duration=60", 1'000'000);
+  EXPECT_EQ(db.LatestTrialUtime(), 1'000'000);  // recording: its start
+  db.EndTrial(first, 61'000'000, TrialState::kComplete);
+  db.StartTrial("S2", "step:level=2,duration=60", 5'000'000);
+  EXPECT_EQ(db.LatestTrialUtime(), 61'000'000);  // S1's end, after S2's start
+}
+
 TEST(Database, UpsertsAndFindsActuators) {
   ScratchDir dir;
   Database db = Database::Open(dir.File("a.db"));

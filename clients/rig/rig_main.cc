@@ -23,11 +23,12 @@
 // FLEXID).
 //
 // Message time: the first sample is at --start-utime; without it, at the wall clock or, if
-// later, just after the latest sample flexidd has seen (its status reply's latest_utime,
-// asked for on the bus with a 0.5 s timeout). So a run after an accelerated one continues
-// its message time instead of going back, which flexidd would take for a clock jump
-// (runner.h, ContinuedStartUtime). When no flexidd answers, the wall clock; a line on
-// stderr says so, and another when the start moved after flexidd's latest sample.
+// later, just after the latest sample flexidd has seen or stored (its status reply's
+// latest_utime, asked for on the bus with a 0.5 s timeout). So a run after an accelerated
+// one (or after flexidd restarted) continues its message time instead of going back,
+// which flexidd would take for a clock jump (runner.h, ContinuedStartUtime). When no
+// flexidd answers, the wall clock; a line on stderr says so, and another when the start
+// moved after flexidd's latest sample.
 //
 // Closed loop (--closed-loop, closed_loop.h): one actuator's voltage is what a controller
 // (flexid-control) commands on PREFIX/<ID>/COMMAND, for --duration seconds of message time,
