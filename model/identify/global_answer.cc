@@ -41,7 +41,7 @@ void GlobalSearch::RefitAtFullRate() {
         std::vector<double> theta = current_all;
         theta[0] = std::clamp(delay_s, 0.0, problem.max_delay_s);
         const double ssr =
-            OutputError(problem, layout.Model(theta.data(), problem.rest_band_V), usable, nullptr);
+            OutputError(problem, layout.Model(theta.data(), problem.rest_band_V), usable);
         if (ssr < least) {
           least = ssr;
           best_s = theta[0];
@@ -73,7 +73,7 @@ void GlobalSearch::FinalFit() {
   final_fit.theta = current_all;
   final_fit.samples = Count(usable);
   final_fit.ssr =
-      OutputError(problem, layout.Model(current_all.data(), problem.rest_band_V), usable, nullptr);
+      OutputError(problem, layout.Model(current_all.data(), problem.rest_band_V), usable);
   result.structure = current;
   result.model = layout.Model(final_fit.theta.data(), problem.rest_band_V);
   result.model.scheduling_delay_s = final_fit.theta[0];
@@ -119,7 +119,7 @@ void GlobalSearch::Intervals() {
   {
     Eigen::VectorXd r0(static_cast<Eigen::Index>(n)), r1(static_cast<Eigen::Index>(n));
     Eigen::MatrixXd jac(static_cast<Eigen::Index>(n), p);
-    OutputError(problem, result.model, usable, r0.data());
+    OutputResiduals(problem, result.model, usable, r0.data());
     for (int j = 0; j < p; ++j) {
       if (j == 0 && options.fixed_delay_s) {
         jac.col(j).setZero();
@@ -133,7 +133,7 @@ void GlobalSearch::Intervals() {
       if (j == 0 && theta[0] >= h && premise_samples(theta[0] + h) != premise_samples(theta[0]))
         h = -h;
       theta[static_cast<size_t>(j)] += h;
-      OutputError(problem, layout.Model(theta.data(), problem.rest_band_V), usable, r1.data());
+      OutputResiduals(problem, layout.Model(theta.data(), problem.rest_band_V), usable, r1.data());
       jac.col(j) = -(r1 - r0) / h;
     }
     const Eigen::MatrixXd jtj = jac.transpose() * jac;

@@ -28,12 +28,14 @@ size_t Count(const Mask& mask) {
 // Simulation and the output-error fit
 // ---------------------------------------------------------------------------------------
 
-double OutputError(const Problem& problem, const TsModel& model, const Mask& mask,
-                   double* residuals) {
+namespace {
+
+// Calls visit(e) with the output error e of every masked sample, in series order.
+template <typename Visit>
+void VisitOutputErrors(const Problem& problem, const TsModel& model, const Mask& mask,
+                       Visit&& visit) {
   SimulationOptions options;
   options.scheduling_resolution_V = problem.resolution_V;
-  double ssr = 0.0;
-  size_t i = 0;
   for (size_t r = 0; r < problem.series.size(); ++r) {
     const auto& m = mask[r];
     const auto last = std::find(m.rbegin(), m.rend(), 1);
@@ -42,14 +44,24 @@ double OutputError(const Problem& problem, const TsModel& model, const Mask& mas
     const Series& s = problem.series[r];
     const std::vector<double> yhat =
         SimulateUniform(model, problem.dt_s, std::span(s.u).first(end), options);
-    for (size_t k = 0; k < end; ++k) {
-      if (!m[k]) continue;
-      const double e = s.y[k] - yhat[k];
-      ssr += e * e;
-      if (residuals) residuals[i++] = e;
-    }
+    for (size_t k = 0; k < end; ++k)
+      if (m[k]) visit(s.y[k] - yhat[k]);
   }
+}
+
+}  // namespace
+
+double OutputError(const Problem& problem, const TsModel& model, const Mask& mask) {
+  double ssr = 0.0;
+  VisitOutputErrors(problem, model, mask, [&ssr](double e) { ssr += e * e; });
   return ssr;
+}
+
+// The fit's residual function (the solver forms the sum of squares itself).
+void OutputResiduals(const Problem& problem, const TsModel& model, const Mask& mask,
+                     double* residuals) {
+  size_t i = 0;
+  VisitOutputErrors(problem, model, mask, [residuals, &i](double e) { residuals[i++] = e; });
 }
 
 FitResult Fit(const Problem& problem, const Layout& layout, const Mask& mask,
@@ -70,7 +82,7 @@ FitResult Fit(const Problem& problem, const Layout& layout, const Mask& mask,
   // (the solver then shrinks the step).
   auto residuals = [&](const double* at, double* out) {
     try {
-      OutputError(problem, layout.Model(at, problem.rest_band_V), mask, out);
+      OutputResiduals(problem, layout.Model(at, problem.rest_band_V), mask, out);
       return true;
     } catch (const std::invalid_argument&) {
       return false;

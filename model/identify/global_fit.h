@@ -138,10 +138,11 @@ std::vector<double> RaiseOrder(const Layout& from, const std::vector<double>& th
 // Simulation and the output-error fit
 // ---------------------------------------------------------------------------------------
 
-// Output error of `model` on the masked samples, written to residuals (if not null) in
-// series order; returns the sum of squares.
-double OutputError(const Problem& problem, const TsModel& model, const Mask& mask,
-                   double* residuals);
+// Sum of squared output errors of `model` on the masked samples.
+double OutputError(const Problem& problem, const TsModel& model, const Mask& mask);
+// The output errors themselves, written to residuals in series order (Count(mask) values).
+void OutputResiduals(const Problem& problem, const TsModel& model, const Mask& mask,
+                     double* residuals);
 
 // Plausibility under switching (header): from steady state at each level (rest included),
 // a jump to every other level. When the rules' dynamics differ, a T-S model can swing far

@@ -45,7 +45,7 @@ void BlockErrors(const Problem& problem, const TsModel& model, const Fold& fold,
   sse->assign(static_cast<size_t>(fold.blocks), 0.0);
   count->assign(static_cast<size_t>(fold.blocks), 0.0);
   std::vector<double> residual(Count(fold.held_out));
-  OutputError(problem, model, fold.held_out, residual.data());
+  OutputResiduals(problem, model, fold.held_out, residual.data());
   size_t i = 0;  // residuals come in series order, one per held-out sample
   for (size_t r = 0; r < fold.block.size(); ++r)
     for (size_t k = 0; k < fold.block[r].size(); ++k) {

@@ -558,8 +558,10 @@ void GlobalSearch::DelayInterval() {
   if (!options.fixed_delay_s && problem.max_delay_s > 0.0) {
     const Layout layout{current, problem.w_min};
     std::vector<double> residual(Count(usable));
-    const double ssr_here = OutputError(
-        problem, layout.Model(current_all.data(), problem.rest_band_V), usable, residual.data());
+    OutputResiduals(problem, layout.Model(current_all.data(), problem.rest_band_V), usable,
+                    residual.data());
+    double ssr_here = 0.0;
+    for (double e : residual) ssr_here += e * e;
     double lag = 0.0, zero = 0.0;
     for (size_t k = 0; k < residual.size(); ++k) {
       zero += residual[k] * residual[k];
