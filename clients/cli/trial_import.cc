@@ -15,6 +15,10 @@
 #include <fstream>
 #include <lcm/lcm-cpp.hpp>
 #include <limits>
+#include <optional>
+#include <string>
+#include <type_traits>
+#include <vector>
 
 #include "clients/cli/command.h"
 #include "lcmtypes/wire_check.h"
@@ -257,102 +261,125 @@ int64_t WellFramedLogBytes(const std::string& path, uint64_t file_size) {
   return static_cast<int64_t>(offset);
 }
 
-}  // namespace
+constexpr int64_t kNoUtime = std::numeric_limits<int64_t>::min();
 
-ImportPlan PlanFromLcmLog(const std::string& path, const PlanOptions& options) {
+// A voltage or deflection sample of the log, checked as flexidd checks one from the bus:
+// decoded, for this actuator, finite, and later than the channel's last accepted one.
+// Counts what it refuses; true when accepted (appended to messages).
+template <typename Message>
+bool AcceptSample(const lcm::LogEvent& event, std::initializer_list<wire::Field> layout,
+                  const std::string& actuator, bool is_voltage, int64_t* last_utime,
+                  std::vector<BusSample>* messages, LogCounts* counts) {
+  Message m;
+  if (!DecodeEvent(event, layout, &m)) {
+    ++counts->malformed;
+    return false;
+  }
+  double value = 0.0;
+  if constexpr (std::is_same_v<Message, flexid::voltage_sample_t>)
+    value = m.voltage_V;
+  else
+    value = m.deflection_mm;
+  if (m.actuator_id != actuator) {
+    ++counts->misaddressed;
+  } else if (!std::isfinite(value)) {
+    ++counts->nonfinite;
+  } else if (*last_utime != kNoUtime && m.utime <= *last_utime) {
+    ++counts->out_of_order;
+  } else {
+    *last_utime = m.utime;
+    messages->push_back({m.utime, value, is_voltage});
+    return true;
+  }
+  return false;
+}
+
+// A trial control of the log for this actuator, or nullopt (counted). Logs hold the
+// signed trial_control2_t, or trial_control_t from before flexid signed trial control; a
+// log is a file, not a request, so either marks a trial.
+std::optional<LogControl> ReadControl(const lcm::LogEvent& event, const std::string& actuator,
+                                      size_t position, LogCounts* counts) {
+  flexid::trial_control_t m;
+  flexid::trial_control2_t signed_control;
+  bool decoded = DecodeEvent(event, wire::kTrialControl, &m);
+  if (!decoded && DecodeEvent(event, wire::kTrialControl2, &signed_control)) {
+    decoded = true;
+    m.utime = signed_control.utime;
+    m.actuator_id = signed_control.actuator_id;
+    m.action = signed_control.action;
+    m.protocol = signed_control.protocol;
+  }
+  if (!decoded) {
+    ++counts->malformed;
+  } else if (m.actuator_id != actuator) {
+    ++counts->other_channels;  // another actuator's trial
+  } else if (m.action != flexid::trial_control_t::kStart &&
+             m.action != flexid::trial_control_t::kStop) {
+    ++counts->malformed;
+  } else {
+    ++counts->trial_control;
+    return LogControl{position, m.utime, m.action == flexid::trial_control_t::kStart, m.protocol};
+  }
+  return std::nullopt;
+}
+
+// Pass 1: the accepted messages in log order, and the trial controls between them.
+struct LogContents {
+  std::vector<BusSample> messages;
+  std::vector<LogControl> controls;
+};
+
+LogContents ReadLog(const std::string& path, const PlanOptions& options, LogCounts* counts) {
   std::error_code size_error;
   const auto file_size = std::filesystem::file_size(path, size_error);
   if (size_error) throw InputError(path + ": cannot open: " + size_error.message());
   const int64_t framed_bytes = WellFramedLogBytes(path, file_size);
   lcm::LogFile log(path, "r");
   if (!log.good()) throw InputError(path + ": cannot open: " + std::strerror(errno));
-
-  ImportPlan plan;
-  plan.actuator = options.actuator;
-  plan.source = path;
-  plan.format = "lcmlog";
-  LogCounts& counts = plan.log;
   const std::string voltage_channel = options.channels.Voltage(options.actuator);
   const std::string deflection_channel = options.channels.Deflection(options.actuator);
   const std::string trial_channel = options.channels.TrialControl();
 
-  // Pass 1: the accepted messages in log order, and the trial controls between them.
-  std::vector<BusSample> messages;
-  std::vector<LogControl> controls;
-  constexpr int64_t kNone = std::numeric_limits<int64_t>::min();
-  int64_t last_voltage_utime = kNone, last_deflection_utime = kNone;
+  LogContents contents;
+  int64_t last_voltage_utime = kNoUtime, last_deflection_utime = kNoUtime;
   int64_t end_of_last_event = 0;
   const lcm::LogEvent* event = nullptr;
   while (static_cast<int64_t>(ftello(log.getFilePtr())) < framed_bytes &&
          (event = log.readNextEvent()) != nullptr) {
-    ++counts.events;
+    ++counts->events;
     end_of_last_event = static_cast<int64_t>(ftello(log.getFilePtr()));
     if (event->channel == voltage_channel) {
-      flexid::voltage_sample_t m;
-      if (!DecodeEvent(*event, wire::kVoltageSample, &m)) {
-        ++counts.malformed;
-      } else if (m.actuator_id != options.actuator) {
-        ++counts.misaddressed;
-      } else if (!std::isfinite(m.voltage_V)) {
-        ++counts.nonfinite;
-      } else if (last_voltage_utime != kNone && m.utime <= last_voltage_utime) {
-        ++counts.out_of_order;
-      } else {
-        last_voltage_utime = m.utime;
-        messages.push_back({m.utime, m.voltage_V, true});
-        ++counts.voltage;
-      }
+      if (AcceptSample<flexid::voltage_sample_t>(*event, wire::kVoltageSample, options.actuator,
+                                                 true, &last_voltage_utime, &contents.messages,
+                                                 counts))
+        ++counts->voltage;
     } else if (event->channel == deflection_channel) {
-      flexid::deflection_sample_t m;
-      if (!DecodeEvent(*event, wire::kDeflectionSample, &m)) {
-        ++counts.malformed;
-      } else if (m.actuator_id != options.actuator) {
-        ++counts.misaddressed;
-      } else if (!std::isfinite(m.deflection_mm)) {
-        ++counts.nonfinite;
-      } else if (last_deflection_utime != kNone && m.utime <= last_deflection_utime) {
-        ++counts.out_of_order;
-      } else {
-        last_deflection_utime = m.utime;
-        messages.push_back({m.utime, m.deflection_mm, false});
-        ++counts.deflection;
-      }
+      if (AcceptSample<flexid::deflection_sample_t>(*event, wire::kDeflectionSample,
+                                                    options.actuator, false, &last_deflection_utime,
+                                                    &contents.messages, counts))
+        ++counts->deflection;
     } else if (event->channel == trial_channel) {
-      // Logs hold the signed trial_control2_t, or trial_control_t from before flexid
-      // signed trial control; a log is a file, not a request, so either marks a trial.
-      flexid::trial_control_t m;
-      flexid::trial_control2_t signed_control;
-      bool decoded = DecodeEvent(*event, wire::kTrialControl, &m);
-      if (!decoded && DecodeEvent(*event, wire::kTrialControl2, &signed_control)) {
-        decoded = true;
-        m.utime = signed_control.utime;
-        m.actuator_id = signed_control.actuator_id;
-        m.action = signed_control.action;
-        m.protocol = signed_control.protocol;
-      }
-      if (!decoded) {
-        ++counts.malformed;
-      } else if (m.actuator_id != options.actuator) {
-        ++counts.other_channels;  // another actuator's trial
-      } else if (m.action != flexid::trial_control_t::kStart &&
-                 m.action != flexid::trial_control_t::kStop) {
-        ++counts.malformed;
-      } else {
-        ++counts.trial_control;
-        controls.push_back(
-            {messages.size(), m.utime, m.action == flexid::trial_control_t::kStart, m.protocol});
-      }
+      if (std::optional<LogControl> control =
+              ReadControl(*event, options.actuator, contents.messages.size(), counts))
+        contents.controls.push_back(std::move(*control));
     } else {
-      ++counts.other_channels;
+      ++counts->other_channels;
     }
   }
-  counts.truncated = end_of_last_event < static_cast<int64_t>(file_size);
-  if (counts.deflection == 0)
+  counts->truncated = end_of_last_event < static_cast<int64_t>(file_size);
+  if (counts->deflection == 0)
     throw InputError(path + ": no deflection messages of actuator " + options.actuator + " on " +
-                     deflection_channel + " (" + std::to_string(counts.events) + " events read, " +
-                     std::to_string(counts.malformed) + " malformed)");
+                     deflection_channel + " (" + std::to_string(counts->events) + " events read, " +
+                     std::to_string(counts->malformed) + " malformed)");
+  return contents;
+}
 
-  // Pass 2: trials, pairing state as flexidd keeps it.
+// Pass 2: trials, pairing state as flexidd keeps it.
+void GroupIntoTrials(const LogContents& contents, const std::string& path,
+                     const PlanOptions& options, ImportPlan* plan) {
+  LogCounts& counts = plan->log;
+  const std::vector<BusSample>& messages = contents.messages;
+  const std::vector<LogControl>& controls = contents.controls;
   double voltage_V = 0;  // in force
   ImportTrial open;
   bool is_open = false;
@@ -361,7 +388,7 @@ ImportPlan PlanFromLcmLog(const std::string& path, const PlanOptions& options) {
     open.end_utime =
         std::max(end_utime, open.messages.empty() ? open.start_utime : open.messages.back().utime);
     if (open.deflections > 0)
-      plan.trials.push_back(std::move(open));
+      plan->trials.push_back(std::move(open));
     else
       ++counts.empty_trials;
     open = ImportTrial{};
@@ -391,24 +418,36 @@ ImportPlan PlanFromLcmLog(const std::string& path, const PlanOptions& options) {
     open.messages.push_back(m);
     if (!m.is_voltage) ++open.deflections;
   }
-  close(std::numeric_limits<int64_t>::min());  // the log ended inside a trial: end at its last
-  if (plan.trials.empty())
+  close(kNoUtime);  // the log ended inside a trial: end at its last message
+  if (plan->trials.empty())
     throw InputError(path + ": no deflection of actuator " + options.actuator +
                      " inside a trial (" + std::to_string(counts.trial_control) +
                      " trial-control messages, " + std::to_string(counts.outside_trial) +
                      " deflections outside trials)");
+}
 
-  // --start-utime: shift every time so that the first trial starts there.
-  if (options.start_utime) {
-    int64_t shift = 0;
-    if (__builtin_sub_overflow(*options.start_utime, plan.trials.front().start_utime, &shift))
-      throw InputError(path + ": --start-utime is too far from the log's times");
-    for (ImportTrial& trial : plan.trials) {
-      trial.start_utime = AddUtime(trial.start_utime, shift, path);
-      trial.end_utime = AddUtime(trial.end_utime, shift, path);
-      for (BusSample& m : trial.messages) m.utime = AddUtime(m.utime, shift, path);
-    }
+// --start-utime: every time shifted so that the first trial starts there.
+void ShiftToStart(int64_t start_utime, const std::string& path, ImportPlan* plan) {
+  int64_t shift = 0;
+  if (__builtin_sub_overflow(start_utime, plan->trials.front().start_utime, &shift))
+    throw InputError(path + ": --start-utime is too far from the log's times");
+  for (ImportTrial& trial : plan->trials) {
+    trial.start_utime = AddUtime(trial.start_utime, shift, path);
+    trial.end_utime = AddUtime(trial.end_utime, shift, path);
+    for (BusSample& m : trial.messages) m.utime = AddUtime(m.utime, shift, path);
   }
+}
+
+}  // namespace
+
+ImportPlan PlanFromLcmLog(const std::string& path, const PlanOptions& options) {
+  ImportPlan plan;
+  plan.actuator = options.actuator;
+  plan.source = path;
+  plan.format = "lcmlog";
+  const LogContents contents = ReadLog(path, options, &plan.log);
+  GroupIntoTrials(contents, path, options, &plan);
+  if (options.start_utime) ShiftToStart(*options.start_utime, path, &plan);
   return plan;
 }
 
