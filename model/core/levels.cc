@@ -95,6 +95,12 @@ size_t SamplesOnPlateaus(const std::vector<Plateau>& plateaus) {
 
 // Header, step 1, second pass: sigma_v from the first differences inside the plateaus.
 // Precondition: plateaus not empty.
+// Whether plateaus hold at least kMinPlateauFraction of the n samples.
+bool MostlyPlateaus(const std::vector<Plateau>& plateaus, size_t n) {
+  return static_cast<double>(SamplesOnPlateaus(plateaus)) >=
+         kMinPlateauFraction * static_cast<double>(n);
+}
+
 double PlateauNoise(std::span<const double> voltage_V, const std::vector<Plateau>& plateaus) {
   const size_t stride = StatisticsStride(SamplesOnPlateaus(plateaus));
   std::vector<double> differences_V;
@@ -216,6 +222,141 @@ bool LevelDetectionOptions::IsValid(std::string* error) const {
   return true;
 }
 
+namespace {
+
+// Header, steps 1-2: the tolerance (given, or a first pass and then the noise re-estimated
+// inside its plateaus) and the plateaus it finds.
+void FindTheTolerance(std::span<const double> t_s, std::span<const double> voltage_V,
+                      const LevelDetectionOptions& options, size_t recording, double range_V,
+                      LevelAnalysis* analysis) {
+  const auto max_glitch = static_cast<size_t>(options.max_glitch_samples);
+  auto find_plateaus = [&](double tolerance_V) {
+    return FindPlateaus(t_s, voltage_V, tolerance_V, options.min_hold_s, max_glitch, recording);
+  };
+  if (options.tolerance_V > 0) {
+    analysis->tolerance_V = options.tolerance_V;
+    analysis->plateaus = find_plateaus(analysis->tolerance_V);
+    return;
+  }
+  analysis->tolerance_V = InitialTolerance(voltage_V, range_V);
+  analysis->plateaus = find_plateaus(analysis->tolerance_V);
+  if (MostlyPlateaus(analysis->plateaus, voltage_V.size())) {
+    const double refined_V =
+        std::max(kToleranceFloorOfRange * range_V,
+                 kNoiseBandSigmas * PlateauNoise(voltage_V, analysis->plateaus));
+    if (refined_V != analysis->tolerance_V) {
+      analysis->tolerance_V = refined_V;
+      analysis->plateaus = find_plateaus(analysis->tolerance_V);
+    }
+  }
+}
+
+// Header, step 3: the rest band (given, or from the largest plateau or the 99 % quantile
+// of |v|).
+double RestBand(std::span<const double> voltage_V, const LevelDetectionOptions& options,
+                const LevelAnalysis& analysis) {
+  if (options.rest_band_V > 0) return options.rest_band_V;
+  double reference_V = 0;
+  if (!analysis.plateaus.empty()) {
+    for (const Plateau& p : analysis.plateaus)
+      reference_V = std::max(reference_V, std::abs(p.voltage_V));
+  } else {
+    const size_t n = voltage_V.size();
+    std::vector<double> magnitude_V;
+    for (size_t k = 0; k < n; k += StatisticsStride(n))
+      magnitude_V.push_back(std::abs(voltage_V[k]));
+    reference_V = SelectQuantile(magnitude_V, 0.99);
+  }
+  return std::max(analysis.tolerance_V, kRestBandOfReference * reference_V);
+}
+
+// Header, step 6: a continuous input is one level, its mean |v| outside the rest band
+// with the sign of the mean v, over the whole recording.
+void OneLevelOfAContinuousInput(std::span<const double> voltage_V, size_t recording,
+                                LevelAnalysis* analysis) {
+  const double rest_band_V = analysis->rest_band_V;
+  auto is_rest = [rest_band_V](double v) { return std::abs(v) <= rest_band_V; };
+  double sum_abs_V = 0, sum_V = 0;
+  size_t count = 0;
+  for (double v : voltage_V) {
+    if (is_rest(v)) continue;
+    sum_abs_V += std::abs(v);
+    sum_V += v;
+    ++count;
+  }
+  if (count == 0)
+    throw InputError("voltage stays within the rest band (|v| <= " + FormatNumber(rest_band_V) +
+                     " V): no excitation to identify from");
+  VoltageLevel level;
+  level.level_V = (sum_V < 0 ? -1.0 : 1.0) * sum_abs_V / static_cast<double>(count);
+  level.segments.push_back({recording, 0, 0, voltage_V.size()});
+  for (Plateau& p : analysis->plateaus) p.level = is_rest(p.voltage_V) ? -1 : 0;
+  analysis->levels.push_back(std::move(level));
+}
+
+// Header, steps 4-5: the plateaus' voltages clustered into levels, and every stretch of
+// the recording assigned to the level of its plateaus (rest plateaus to the level before,
+// or after at the start), with its lead-in.
+void LevelsOfThePlateaus(std::span<const double> t_s, const std::vector<ClusterItem>& items,
+                         const LevelDetectionOptions& options, size_t recording,
+                         LevelAnalysis* analysis) {
+  std::vector<Plateau>& plateaus = analysis->plateaus;
+  std::vector<int> cluster_of(plateaus.size(), -1);
+  const std::vector<double> level_V = Cluster(items, analysis->tolerance_V, &cluster_of);
+  analysis->levels.resize(level_V.size());
+  for (size_t i = 0; i < level_V.size(); ++i) analysis->levels[i].level_V = level_V[i];
+  for (size_t p = 0; p < plateaus.size(); ++p) plateaus[p].level = cluster_of[p];
+
+  std::vector<int> assigned(plateaus.size(), -1);
+  int previous = -1;
+  for (size_t p = 0; p < plateaus.size(); ++p) {
+    if (plateaus[p].level >= 0) previous = plateaus[p].level;
+    assigned[p] = previous;
+  }
+  int following = -1;
+  for (size_t p = plateaus.size(); p-- > 0;) {
+    if (plateaus[p].level >= 0) following = plateaus[p].level;
+    if (assigned[p] < 0) assigned[p] = following;
+  }
+  for (size_t first = 0; first < plateaus.size();) {
+    size_t last = first;
+    while (last + 1 < plateaus.size() && assigned[last + 1] == assigned[first]) ++last;
+    LevelSegment segment;
+    segment.recording = recording;
+    segment.fit_begin = first == 0 ? 0 : plateaus[first - 1].end;
+    segment.end = last + 1 == plateaus.size() ? t_s.size() : plateaus[last].end;
+    segment.begin = segment.fit_begin;
+    if (first > 0) {
+      const double lead_in_start_s = t_s[segment.fit_begin] - options.lead_in_s;
+      const auto begin_it = std::lower_bound(
+          t_s.begin() + static_cast<std::ptrdiff_t>(plateaus[first - 1].begin),
+          t_s.begin() + static_cast<std::ptrdiff_t>(segment.fit_begin), lead_in_start_s);
+      segment.begin = static_cast<size_t>(begin_it - t_s.begin());
+    }
+    analysis->levels[static_cast<size_t>(assigned[first])].segments.push_back(segment);
+    first = last + 1;
+  }
+}
+
+// Header, step 7: every level is reached by a voltage transition somewhere.
+void CheckEveryLevelIsExcited(const LevelAnalysis& analysis, size_t max_glitch) {
+  for (const VoltageLevel& level : analysis.levels) {
+    const bool excited =
+        std::any_of(level.segments.begin(), level.segments.end(), [&](const LevelSegment& s) {
+          const size_t window_begin =
+              s.begin < s.fit_begin ? s.begin : (s.fit_begin > 0 ? s.fit_begin - 1 : 0);
+          return HasTransition(analysis.plateaus, window_begin, s.end, analysis.tolerance_V,
+                               max_glitch);
+        });
+    if (!excited)
+      throw InputError("voltage level " + FormatNumber(level.level_V) +
+                       " V has no excitation: the recording holds it without a voltage "
+                       "transition");
+  }
+}
+
+}  // namespace
+
 LevelAnalysis DetectLevels(std::span<const double> t_s, std::span<const double> voltage_V,
                            const LevelDetectionOptions& options, size_t recording) {
   if (t_s.size() != voltage_V.size())
@@ -226,7 +367,6 @@ LevelAnalysis DetectLevels(std::span<const double> t_s, std::span<const double> 
   if (!options.IsValid(&options_error))
     throw std::invalid_argument("DetectLevels: " + options_error);
   CheckInput(t_s, voltage_V);
-  const size_t n = t_s.size();
   const auto [min_it, max_it] = std::minmax_element(voltage_V.begin(), voltage_V.end());
   const double range_V = *max_it - *min_it;
   if (range_V == 0.0)
@@ -234,131 +374,20 @@ LevelAnalysis DetectLevels(std::span<const double> t_s, std::span<const double> 
                      " V: no excitation to identify from");
 
   LevelAnalysis analysis;
-  const auto max_glitch = static_cast<size_t>(options.max_glitch_samples);
-  auto find_plateaus = [&](double tolerance_V) {
-    return FindPlateaus(t_s, voltage_V, tolerance_V, options.min_hold_s, max_glitch, recording);
-  };
-  auto mostly_plateaus = [&](const std::vector<Plateau>& found) {
-    return static_cast<double>(SamplesOnPlateaus(found)) >=
-           kMinPlateauFraction * static_cast<double>(n);
-  };
-  if (options.tolerance_V > 0) {
-    analysis.tolerance_V = options.tolerance_V;
-    analysis.plateaus = find_plateaus(analysis.tolerance_V);
-  } else {
-    // Header, step 1: a first pass, then the noise re-estimated inside its plateaus.
-    analysis.tolerance_V = InitialTolerance(voltage_V, range_V);
-    analysis.plateaus = find_plateaus(analysis.tolerance_V);
-    if (mostly_plateaus(analysis.plateaus)) {
-      const double refined_V =
-          std::max(kToleranceFloorOfRange * range_V,
-                   kNoiseBandSigmas * PlateauNoise(voltage_V, analysis.plateaus));
-      if (refined_V != analysis.tolerance_V) {
-        analysis.tolerance_V = refined_V;
-        analysis.plateaus = find_plateaus(analysis.tolerance_V);
-      }
-    }
-  }
-  const double tolerance_V = analysis.tolerance_V;
-  std::vector<Plateau>& plateaus = analysis.plateaus;
-
-  // Header, step 3.
-  if (options.rest_band_V > 0) {
-    analysis.rest_band_V = options.rest_band_V;
-  } else {
-    double reference_V = 0;
-    if (!plateaus.empty()) {
-      for (const Plateau& p : plateaus) reference_V = std::max(reference_V, std::abs(p.voltage_V));
-    } else {
-      std::vector<double> magnitude_V;
-      for (size_t k = 0; k < n; k += StatisticsStride(n))
-        magnitude_V.push_back(std::abs(voltage_V[k]));
-      reference_V = SelectQuantile(magnitude_V, 0.99);
-    }
-    analysis.rest_band_V = std::max(tolerance_V, kRestBandOfReference * reference_V);
-  }
-  const double rest_band_V = analysis.rest_band_V;
-  auto is_rest = [&](double v) { return std::abs(v) <= rest_band_V; };
-
+  FindTheTolerance(t_s, voltage_V, options, recording, range_V, &analysis);
+  analysis.rest_band_V = RestBand(voltage_V, options, analysis);
   std::vector<ClusterItem> items;
-  for (size_t p = 0; p < plateaus.size(); ++p) {
-    if (!is_rest(plateaus[p].voltage_V))
-      items.push_back(
-          {plateaus[p].voltage_V, static_cast<double>(plateaus[p].end - plateaus[p].begin), p});
+  for (size_t p = 0; p < analysis.plateaus.size(); ++p) {
+    const Plateau& plateau = analysis.plateaus[p];
+    if (std::abs(plateau.voltage_V) > analysis.rest_band_V)
+      items.push_back({plateau.voltage_V, static_cast<double>(plateau.end - plateau.begin), p});
   }
-  analysis.plateau_input = !items.empty() && mostly_plateaus(plateaus);
-
-  if (!analysis.plateau_input) {
-    // Header, step 6.
-    double sum_abs_V = 0, sum_V = 0;
-    size_t count = 0;
-    for (double v : voltage_V) {
-      if (is_rest(v)) continue;
-      sum_abs_V += std::abs(v);
-      sum_V += v;
-      ++count;
-    }
-    if (count == 0)
-      throw InputError("voltage stays within the rest band (|v| <= " + FormatNumber(rest_band_V) +
-                       " V): no excitation to identify from");
-    VoltageLevel level;
-    level.level_V = (sum_V < 0 ? -1.0 : 1.0) * sum_abs_V / static_cast<double>(count);
-    level.segments.push_back({recording, 0, 0, n});
-    for (Plateau& p : plateaus) p.level = is_rest(p.voltage_V) ? -1 : 0;
-    analysis.levels.push_back(std::move(level));
-  } else {
-    // Header, step 4.
-    std::vector<int> cluster_of(plateaus.size(), -1);
-    const std::vector<double> level_V = Cluster(items, tolerance_V, &cluster_of);
-    analysis.levels.resize(level_V.size());
-    for (size_t i = 0; i < level_V.size(); ++i) analysis.levels[i].level_V = level_V[i];
-    for (size_t p = 0; p < plateaus.size(); ++p) plateaus[p].level = cluster_of[p];
-
-    // Header, step 5: assigned level of every plateau.
-    std::vector<int> assigned(plateaus.size(), -1);
-    int previous = -1;
-    for (size_t p = 0; p < plateaus.size(); ++p) {
-      if (plateaus[p].level >= 0) previous = plateaus[p].level;
-      assigned[p] = previous;
-    }
-    int following = -1;
-    for (size_t p = plateaus.size(); p-- > 0;) {
-      if (plateaus[p].level >= 0) following = plateaus[p].level;
-      if (assigned[p] < 0) assigned[p] = following;
-    }
-    for (size_t first = 0; first < plateaus.size();) {
-      size_t last = first;
-      while (last + 1 < plateaus.size() && assigned[last + 1] == assigned[first]) ++last;
-      LevelSegment segment;
-      segment.recording = recording;
-      segment.fit_begin = first == 0 ? 0 : plateaus[first - 1].end;
-      segment.end = last + 1 == plateaus.size() ? n : plateaus[last].end;
-      segment.begin = segment.fit_begin;
-      if (first > 0) {
-        const double lead_in_start_s = t_s[segment.fit_begin] - options.lead_in_s;
-        const auto begin_it = std::lower_bound(
-            t_s.begin() + static_cast<std::ptrdiff_t>(plateaus[first - 1].begin),
-            t_s.begin() + static_cast<std::ptrdiff_t>(segment.fit_begin), lead_in_start_s);
-        segment.begin = static_cast<size_t>(begin_it - t_s.begin());
-      }
-      analysis.levels[static_cast<size_t>(assigned[first])].segments.push_back(segment);
-      first = last + 1;
-    }
-  }
-
-  // Header, step 7.
-  for (const VoltageLevel& level : analysis.levels) {
-    const bool excited =
-        std::any_of(level.segments.begin(), level.segments.end(), [&](const LevelSegment& s) {
-          const size_t window_begin =
-              s.begin < s.fit_begin ? s.begin : (s.fit_begin > 0 ? s.fit_begin - 1 : 0);
-          return HasTransition(plateaus, window_begin, s.end, tolerance_V, max_glitch);
-        });
-    if (!excited)
-      throw InputError("voltage level " + FormatNumber(level.level_V) +
-                       " V has no excitation: the recording holds it without a voltage "
-                       "transition");
-  }
+  analysis.plateau_input = !items.empty() && MostlyPlateaus(analysis.plateaus, voltage_V.size());
+  if (analysis.plateau_input)
+    LevelsOfThePlateaus(t_s, items, options, recording, &analysis);
+  else
+    OneLevelOfAContinuousInput(voltage_V, recording, &analysis);
+  CheckEveryLevelIsExcited(analysis, static_cast<size_t>(options.max_glitch_samples));
   return analysis;
 }
 
