@@ -107,7 +107,14 @@ Service::Service(Config c, std::string path)
     if (!actuators.count(a.id)) AddActuator(a);
 
   Subscribe();
-  worker = std::make_unique<Worker>(background_cpus, [this] { Wake(); });
+  // The identification worker runs on the background CPUs with pin_threads, else on the
+  // last CPU (with two or more): a fit then never holds a CPU that the loop and LCM's
+  // receive thread wake on, except that one, where it yields to them (SCHED_IDLE).
+  // Several daemons on one host share that CPU for their fits; their live threads are
+  // not pinned. Measured in README "Benchmarks" (daemon_load and the soak).
+  std::vector<int> worker_cpus = background_cpus;
+  if (worker_cpus.empty() && cpus >= 2) worker_cpus = {cpus - 1};
+  worker = std::make_unique<Worker>(worker_cpus, [this] { Wake(); });
 }
 
 Service::~Service() {
