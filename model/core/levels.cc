@@ -93,14 +93,14 @@ size_t SamplesOnPlateaus(const std::vector<Plateau>& plateaus) {
   return count;
 }
 
-// Header, step 1, second pass: sigma_v from the first differences inside the plateaus.
-// Precondition: plateaus not empty.
 // Whether plateaus hold at least kMinPlateauFraction of the n samples.
 bool MostlyPlateaus(const std::vector<Plateau>& plateaus, size_t n) {
   return static_cast<double>(SamplesOnPlateaus(plateaus)) >=
          kMinPlateauFraction * static_cast<double>(n);
 }
 
+// Header, step 1, second pass: sigma_v from the first differences inside the plateaus.
+// Precondition: plateaus not empty.
 double PlateauNoise(std::span<const double> voltage_V, const std::vector<Plateau>& plateaus) {
   const size_t stride = StatisticsStride(SamplesOnPlateaus(plateaus));
   std::vector<double> differences_V;
