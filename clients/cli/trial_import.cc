@@ -263,20 +263,20 @@ int64_t WellFramedLogBytes(const std::string& path, uint64_t file_size) {
 
 constexpr int64_t kNoUtime = std::numeric_limits<int64_t>::min();
 
-// A voltage or deflection sample of the log, checked as flexidd checks one from the bus:
-// decoded, for this actuator, finite, and later than the channel's last accepted one.
-// Counts what it refuses; true when accepted (appended to messages).
+// A voltage_sample_t or deflection_sample_t of the log, checked as flexidd checks one from
+// the bus: decoded, for this actuator, finite, and later than the channel's last accepted
+// one. Appended to messages and counted when accepted; what it refuses is counted too.
 template <typename Message>
-bool AcceptSample(const lcm::LogEvent& event, std::initializer_list<wire::Field> layout,
-                  const std::string& actuator, bool is_voltage, int64_t* last_utime,
+void AcceptSample(const lcm::LogEvent& event, const std::string& actuator, int64_t* last_utime,
                   std::vector<BusSample>* messages, LogCounts* counts) {
+  constexpr bool kVoltage = std::is_same_v<Message, flexid::voltage_sample_t>;
   Message m;
-  if (!DecodeEvent(event, layout, &m)) {
+  if (!DecodeEvent(event, kVoltage ? wire::kVoltageSample : wire::kDeflectionSample, &m)) {
     ++counts->malformed;
-    return false;
+    return;
   }
   double value = 0.0;
-  if constexpr (std::is_same_v<Message, flexid::voltage_sample_t>)
+  if constexpr (kVoltage)
     value = m.voltage_V;
   else
     value = m.deflection_mm;
@@ -288,10 +288,9 @@ bool AcceptSample(const lcm::LogEvent& event, std::initializer_list<wire::Field>
     ++counts->out_of_order;
   } else {
     *last_utime = m.utime;
-    messages->push_back({m.utime, value, is_voltage});
-    return true;
+    messages->push_back({m.utime, value, kVoltage});
+    ++(kVoltage ? counts->voltage : counts->deflection);
   }
-  return false;
 }
 
 // A trial control of the log for this actuator, or nullopt (counted). Logs hold the
@@ -349,15 +348,11 @@ LogContents ReadLog(const std::string& path, const PlanOptions& options, LogCoun
     ++counts->events;
     end_of_last_event = static_cast<int64_t>(ftello(log.getFilePtr()));
     if (event->channel == voltage_channel) {
-      if (AcceptSample<flexid::voltage_sample_t>(*event, wire::kVoltageSample, options.actuator,
-                                                 true, &last_voltage_utime, &contents.messages,
-                                                 counts))
-        ++counts->voltage;
+      AcceptSample<flexid::voltage_sample_t>(*event, options.actuator, &last_voltage_utime,
+                                             &contents.messages, counts);
     } else if (event->channel == deflection_channel) {
-      if (AcceptSample<flexid::deflection_sample_t>(*event, wire::kDeflectionSample,
-                                                    options.actuator, false, &last_deflection_utime,
-                                                    &contents.messages, counts))
-        ++counts->deflection;
+      AcceptSample<flexid::deflection_sample_t>(*event, options.actuator, &last_deflection_utime,
+                                                &contents.messages, counts);
     } else if (event->channel == trial_channel) {
       if (std::optional<LogControl> control =
               ReadControl(*event, options.actuator, contents.messages.size(), counts))

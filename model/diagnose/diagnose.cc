@@ -91,10 +91,10 @@ struct Diagnoser {
         Format(", %.1f times the sensor noise", left_mm / data.noise_mm) +
         ", and no effect of the catalogue explains the rest (" + Mm(misfit.rms_mm) +
         " beyond the noise): " +
-        (trusted_model ? "the model itself is off there, or the actuator shows physics the "
-                         "catalogue does not hold"
+        (trusted_model ? "the model itself is off there"
                        : "the fitted samples did not determine a model that carries over to "
-                         "them, or the actuator shows physics the catalogue does not hold");
+                         "them") +
+        ", or the actuator shows physics the catalogue does not hold";
     result.unexplained.push_back(std::move(misfit));
   }
 

@@ -560,14 +560,12 @@ void GlobalSearch::DelayInterval() {
     std::vector<double> residual(Count(usable));
     OutputResiduals(problem, layout.Model(current_all.data(), problem.rest_band_V), usable,
                     residual.data());
-    double ssr_here = 0.0;
-    for (double e : residual) ssr_here += e * e;
-    double lag = 0.0, zero = 0.0;
+    double lag = 0.0, ssr_here = 0.0;
     for (size_t k = 0; k < residual.size(); ++k) {
-      zero += residual[k] * residual[k];
+      ssr_here += residual[k] * residual[k];
       if (k > 0) lag += residual[k] * residual[k - 1];
     }
-    const double rho = std::clamp(zero > 0.0 ? lag / zero : 0.0, 0.0, 0.95);
+    const double rho = std::clamp(ssr_here > 0.0 ? lag / ssr_here : 0.0, 0.0, 0.95);
     std::vector<double> grid;
     const int steps = static_cast<int>(std::ceil(problem.max_delay_s / 0.5));
     for (int i = 0; i <= steps; ++i)
