@@ -42,7 +42,7 @@ model::ModelDocument AugmentedSeedModel() {
   const std::vector<model::Effect> effects = {
       {model::EffectKind::kDeadZone, {0.4}},
       {model::EffectKind::kPolarityAsymmetry, {0.7}},
-      {model::EffectKind::kCycleDegradation, {0.3}, 600.0},
+      {model::EffectKind::kCycleDegradation, {0.3, 1.0}, 600.0},
       {model::EffectKind::kBackRelaxation, {0.2, 30.0}},
       {model::EffectKind::kHysteresis, {0.15, 0.4}},
       {model::EffectKind::kSensorDrift, {0.3, 0.1, 20.0}, 250.0},
@@ -116,8 +116,8 @@ TEST_F(DaemonAugmented, ActivatingAModelThatCannotRunLiveIsRefusedAndChangesNoth
   StoreModel(model::FromTsModel(model::SeedTsModel()), true);  // version 1, active
   model::ModelDocument doc = model::FromTsModel(model::SeedTsModel());
   doc.augmentations.push_back(
-      model::AugmentationOf({model::EffectKind::kCycleDegradation, {0.3}}));  // no charge_Vs
-  StoreModel(doc, false);                                                     // version 2
+      model::AugmentationOf({model::EffectKind::kCycleDegradation, {0.3, 1.0}}));  // no charge_Vs
+  StoreModel(doc, false);                                                          // version 2
   model::ModelDocument wrong = model::FromTsModel(model::SeedTsModel());
   wrong.augmentations.push_back({"back_relaxation", {{"fraction", 1.5}, {"tau_s", 30.0}}});
   StoreModel(wrong, false);  // version 3: a fraction out of [0, 1)

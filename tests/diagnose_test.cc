@@ -111,6 +111,17 @@ TEST(DiagnoseCatalogue, AugmentationsRoundTripAndBadOnesAreNamed) {
   } catch (const model::InputError& e) {
     EXPECT_NE(std::string(e.what()).find("tau_s"), std::string::npos) << e.what();
   }
+  // A degradation written before its exponent existed reads as the law it was fitted with
+  // (a steady loss per charge, exponent 1); the loss itself is still required.
+  const model::Effect older =
+      model::EffectFromAugmentation({"cycle_degradation", {{"loss", 0.2}, {"charge_Vs", 900.0}}});
+  EXPECT_EQ(older.params, (std::vector<double>{0.2, 1.0}));
+  EXPECT_EQ(older.scale, 900.0);
+  EXPECT_THROW(model::EffectFromAugmentation({"cycle_degradation", {{"exponent", 0.5}}}),
+               model::InputError);
+  EXPECT_THROW(
+      model::EffectFromAugmentation({"cycle_degradation", {{"loss", 0.2}, {"exponent", -1.0}}}),
+      model::InputError);
 }
 
 TEST(DiagnoseInput, ShortOrConstantRecordingsAreRefused) {

@@ -46,7 +46,7 @@ std::vector<Effect> EveryEffect(double charge_Vs, double span_s) {
       {EffectKind::kDeadZone, {0.4}},
       {EffectKind::kPolarityAsymmetry, {0.7}},
       {EffectKind::kElectrolysisSaturation, {5.0, 0.5}},
-      {EffectKind::kCycleDegradation, {0.3}, charge_Vs},
+      {EffectKind::kCycleDegradation, {0.3, 0.5}, charge_Vs},
       {EffectKind::kBackRelaxation, {0.2, 30.0}},
       {EffectKind::kCreep, {0.1, 80.0}},
       {EffectKind::kHysteresis, {0.15, 0.4}},
@@ -94,7 +94,7 @@ TEST(EffectsStreaming, AFixedScaleEqualToTheRecordingsOwnChangesNothing) {
   const model::Recording rec = Staircase();
   const model::TsModel model = model::SeedTsModel();
   for (EffectKind kind : {EffectKind::kCycleDegradation, EffectKind::kSensorDrift}) {
-    Effect own = kind == EffectKind::kCycleDegradation ? Effect{kind, {0.3}}
+    Effect own = kind == EffectKind::kCycleDegradation ? Effect{kind, {0.3, 1.0}}
                                                        : Effect{kind, {0.3, 0.1, 20.0}};
     Effect fixed = own;
     fixed.scale = model::OwnScale(kind, rec.t_s, rec.voltage_V);
@@ -114,7 +114,7 @@ TEST(EffectsStreaming, AFixedScaleEqualToTheRecordingsOwnChangesNothing) {
 
 TEST(EffectsStreaming, AnAccruingEffectWithoutItsScaleCannotRunLive) {
   for (const auto& [effect, scale_name] :
-       {std::pair{Effect{EffectKind::kCycleDegradation, {0.3}}, "charge_Vs"},
+       {std::pair{Effect{EffectKind::kCycleDegradation, {0.3, 1.0}}, "charge_Vs"},
         std::pair{Effect{EffectKind::kSensorDrift, {0.3, 0.1, 20.0}}, "span_s"}}) {
     try {
       model::AugmentedStreamingSimulator simulator(model::SeedTsModel(), {effect});
@@ -130,7 +130,7 @@ TEST(EffectsStreaming, AnAccruingEffectWithoutItsScaleCannotRunLive) {
 }
 
 TEST(EffectsStreaming, TheScaleTravelsInTheAugmentationAndIsChecked) {
-  const Effect e{EffectKind::kCycleDegradation, {0.3}, 512.5};
+  const Effect e{EffectKind::kCycleDegradation, {0.3, 1.0}, 512.5};
   const model::Augmentation a = model::AugmentationOf(e);
   EXPECT_EQ(a.params.at("charge_Vs").get<double>(), 512.5);
   EXPECT_EQ(model::EffectFromAugmentation(a).scale, 512.5);

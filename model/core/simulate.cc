@@ -109,9 +109,18 @@ long PremiseDelaySamples(const TsModel& model, double dt_s) {
   return static_cast<long>(std::ceil(model.scheduling_delay_s / dt_s - 1e-9));
 }
 
-void CheckResolution(const SimulationOptions& options) {
+// The scheduling resolution, and a premise series (SimulationOptions::premise_V) as long
+// as the voltage (samples) and finite.
+void CheckOptions(const SimulationOptions& options, size_t samples) {
   if (!(options.scheduling_resolution_V > 0.0) || !std::isfinite(options.scheduling_resolution_V))
     throw std::invalid_argument("scheduling resolution must be finite and > 0");
+  if (options.premise_V.empty()) return;
+  if (options.premise_V.size() != samples)
+    throw std::invalid_argument("premise voltage has " + std::to_string(options.premise_V.size()) +
+                                " samples, the voltage " + std::to_string(samples));
+  for (size_t k = 0; k < samples; ++k)
+    if (!std::isfinite(options.premise_V[k]))
+      throw std::invalid_argument("non-finite premise voltage at sample " + std::to_string(k));
 }
 
 // The frozen model at one scheduling value, realised (state_space.h).
@@ -218,13 +227,24 @@ void RunUniform(const TsModel& model, double dt_s, std::span<const double> u,
   std::vector<double> padded(static_cast<size_t>(pad), u_before);
   padded.insert(padded.end(), u.begin(), u.end());
   const double* up = padded.data() + pad;
+  // The operating point's voltage (SimulationOptions::premise_V), padded alike.
+  const std::span<const double> premise = options.premise_V.empty() ? u : options.premise_V;
+  const double premise_before =
+      options.start_in_steady_state ? premise.front() : options.initial_voltage_V;
+  std::vector<double> premise_padded;
+  const double* pp = up;
+  if (!options.premise_V.empty()) {
+    premise_padded.assign(static_cast<size_t>(pad), premise_before);
+    premise_padded.insert(premise_padded.end(), premise.begin(), premise.end());
+    pp = premise_padded.data() + pad;
+  }
 
   const PreparedRules prepared = PrepareRules(model);
   auto make_entry = [&](double z) { return MakeUniformEntry<N>(model, prepared, z, dt_s); };
 
   Scheduler scheduler(model);
   Vec x = InitialState(
-      OperatingPointAt(model, prepared, OperatingZ(scheduler, u_before, resolution_V)).ss,
+      OperatingPointAt(model, prepared, OperatingZ(scheduler, premise_before, resolution_V)).ss,
       u_before);
   const long count = static_cast<long>(u.size());
   if (memberships) memberships->resize(u.size() * m);
@@ -241,14 +261,15 @@ void RunUniform(const TsModel& model, double dt_s, std::span<const double> u,
     if (memberships) std::fill(memberships->begin(), memberships->end(), 1.0);
     return;
   }
-  OperatingPointCache<UniformEntry<N>> cache(resolution_V, MaxAbs(u, u_before), u.size());
+  OperatingPointCache<UniformEntry<N>> cache(resolution_V, MaxAbs(premise, premise_before),
+                                             u.size());
   double last_q = std::numeric_limits<double>::quiet_NaN();
   const UniformEntry<N>* e = nullptr;
   // The scheduler gives the same z for a repeated voltage (held |u| included), and lab
   // inputs hold each voltage for many samples: z is computed only when the voltage moves.
   double last_raw_V = std::numeric_limits<double>::quiet_NaN();
   for (long k = 0; k < count; ++k) {
-    const double raw_V = up[k - premise_delay];
+    const double raw_V = pp[k - premise_delay];
     const bool moved = e == nullptr || raw_V != last_raw_V;
     last_raw_V = raw_V;
     const double q = moved ? OperatingIndex(scheduler, raw_V, resolution_V) : last_q;
@@ -342,13 +363,14 @@ void ParallelUniform(const TsModel& model, double dt_s, std::span<const double> 
                      const SimulationOptions& options, double* y,
                      std::vector<double>* memberships) {
   const size_t m = model.rules.size(), n = u.size();
+  const std::span<const double> premise = options.premise_V.empty() ? u : options.premise_V;
   ParallelShares shares(model, options.scheduling_resolution_V,
-                        MaxAbs(u, options.initial_voltage_V), n);
+                        MaxAbs(premise, options.initial_voltage_V), n);
   const std::vector<double> before = shares.Memberships(options.initial_voltage_V);
   std::vector<std::vector<double>> drive(m, std::vector<double>(n));
   if (memberships) memberships->resize(n * m);
   for (size_t k = 0; k < n; ++k) {
-    const std::vector<double>& mu = shares.Memberships(u[k]);
+    const std::vector<double>& mu = shares.Memberships(premise[k]);
     for (size_t i = 0; i < m; ++i) drive[i][k] = mu[i] * u[k];
     if (memberships)
       std::copy(mu.begin(), mu.end(), memberships->begin() + static_cast<long>(k * m));
@@ -387,6 +409,7 @@ void ParallelUniform(const TsModel& model, double dt_s, std::span<const double> 
       continue;  // a rule that never fires adds nothing
     SimulationOptions rule = options;
     rule.initial_voltage_V = initial[i];
+    rule.premise_V = {};
     DispatchUniform(SingleRule(model.rules[i].tf), dt_s, drive[i], rule, part.data(), nullptr);
     for (size_t k = 0; k < n; ++k) y[k] += part[k];
   }
@@ -407,8 +430,8 @@ struct StreamingSimulator::Impl {
   std::unique_ptr<ParallelShares> shares;
   std::vector<double> mu;
 
-  double StepParallel(double t_s, double voltage_V) {
-    mu = shares->Memberships(voltage_V);
+  double StepParallel(double t_s, double voltage_V, double premise_V) {
+    mu = shares->Memberships(premise_V);
     double y = 0.0;
     for (size_t i = 0; i < rules.size(); ++i) y += rules[i].Step(t_s, mu[i] * voltage_V);
     return y;
@@ -428,9 +451,14 @@ struct StreamingSimulator::Impl {
     std::unordered_map<uint64_t, ZohStep> steps;
   };
   std::unordered_map<uint64_t, Point> points;
-  std::optional<PreparedRules> prepared;          // the model's rules, once (PrepareRules)
-  Point* point = nullptr;                         // in force since the last sample
-  std::deque<std::pair<double, double>> history;  // (t_j, u_j), increasing t_j
+  std::optional<PreparedRules> prepared;  // the model's rules, once (PrepareRules)
+  Point* point = nullptr;                 // in force since the last sample
+  // (t_j, u_j), increasing t_j, and the premise's voltage p_j (premise_V) beside it.
+  struct Past {
+    double t_s, u_V, premise_V;
+  };
+  std::deque<Past> history;
+  double premise_before_V = 0.0;
 
   // Step quantised to 2^-40 s (about 1e-12 s) so that equal steps on a float grid share
   // one cached propagator; the propagation uses the quantised step.
@@ -456,17 +484,17 @@ struct StreamingSimulator::Impl {
   double DelayedInput(double t_s) const {
     const double at_s = t_s - point->op.ss.delay_s;
     double value = u_before_V;
-    for (const auto& [t_j, u_j] : history) {
-      if (t_j > at_s && !SameTime(t_j, at_s)) break;
-      value = u_j;
+    for (const Past& p : history) {
+      if (p.t_s > at_s && !SameTime(p.t_s, at_s)) break;
+      value = p.u_V;
     }
     return value;
   }
 
   // First time in (t_now, t_end] at which the delayed input switches, if any.
   bool NextSwitch(double t_end_s, double* when_s) const {
-    for (const auto& entry : history) {
-      const double when = entry.first + point->op.ss.delay_s;
+    for (const Past& entry : history) {
+      const double when = entry.t_s + point->op.ss.delay_s;
       if (when <= t_now_s || SameTime(when, t_now_s)) continue;
       if (when < t_end_s && !SameTime(when, t_end_s)) {
         *when_s = when;
@@ -502,23 +530,24 @@ struct StreamingSimulator::Impl {
   // Drops samples no dead time can reach any more, keeping the one in force.
   void TrimHistory() {
     const double horizon_s = t_now_s - max_delay_s;
-    while (history.size() >= 2 && history[1].first <= horizon_s &&
-           !SameTime(history[1].first, horizon_s)) {
-      u_before_V = history.front().second;
+    while (history.size() >= 2 && history[1].t_s <= horizon_s &&
+           !SameTime(history[1].t_s, horizon_s)) {
+      u_before_V = history.front().u_V;
+      premise_before_V = history.front().premise_V;
       history.pop_front();
     }
   }
 
-  // The premise's voltage for a sample (t_s, voltage_V) not yet in the history: the
+  // The premise's voltage for a sample (t_s, premise_V) not yet in the history: that
   // voltage itself, or for kAbsVoltageDelayed the one in force at t_s - delay.
-  double PremiseVoltage(double t_s, double voltage_V) const {
-    if (model.scheduling != SchedulingVariable::kAbsVoltageDelayed) return voltage_V;
+  double PremiseVoltage(double t_s, double premise_V) const {
+    if (model.scheduling != SchedulingVariable::kAbsVoltageDelayed) return premise_V;
     const double at_s = t_s - model.scheduling_delay_s;
-    if (SameTime(at_s, t_s)) return voltage_V;
-    double value = u_before_V;
-    for (const auto& [t_j, u_j] : history) {
-      if (t_j > at_s && !SameTime(t_j, at_s)) break;
-      value = u_j;
+    if (SameTime(at_s, t_s)) return premise_V;
+    double value = premise_before_V;
+    for (const Past& p : history) {
+      if (p.t_s > at_s && !SameTime(p.t_s, at_s)) break;
+      value = p.premise_V;
     }
     return value;
   }
@@ -528,24 +557,25 @@ struct StreamingSimulator::Impl {
     return state + point->op.ss.D * DelayedInput(t_now_s);
   }
 
-  double Step(double t_s, double voltage_V) {
-    if (!std::isfinite(t_s) || !std::isfinite(voltage_V))
+  double Step(double t_s, double voltage_V, double premise_V) {
+    if (!std::isfinite(t_s) || !std::isfinite(voltage_V) || !std::isfinite(premise_V))
       throw std::invalid_argument("StreamingSimulator: non-finite time or voltage");
     if (!started) {
       started = true;
       t_now_s = t_s;
       u_before_V = options.start_in_steady_state ? voltage_V : options.initial_voltage_V;
-      SelectPoint(u_before_V);
+      premise_before_V = options.start_in_steady_state ? premise_V : options.initial_voltage_V;
+      SelectPoint(premise_before_V);
       x = InitialState(point->op.ss, u_before_V);
-      SelectPoint(PremiseVoltage(t_s, voltage_V));
+      SelectPoint(PremiseVoltage(t_s, premise_V));
     } else {
       if (!(t_s > t_now_s)) throw std::invalid_argument("StreamingSimulator: time not increasing");
       AdvanceTo(t_s);  // under the operating point of the previous sample
       if (x.size() > 0) AddMarkovTerm(point->op.remap, DelayedInput(t_s), +1.0, &x);
-      SelectPoint(PremiseVoltage(t_s, voltage_V));
+      SelectPoint(PremiseVoltage(t_s, premise_V));
       if (x.size() > 0) AddMarkovTerm(point->op.remap, DelayedInput(t_s), -1.0, &x);
     }
-    history.emplace_back(t_s, voltage_V);
+    history.push_back({t_s, voltage_V, premise_V});
     TrimHistory();
     return Output();
   }
@@ -554,7 +584,9 @@ struct StreamingSimulator::Impl {
 StreamingSimulator::StreamingSimulator(const TsModel& model, const SimulationOptions& options)
     : impl_(std::make_unique<Impl>()) {
   CheckModel(model);
-  CheckResolution(options);
+  if (!options.premise_V.empty())
+    throw std::invalid_argument("StreamingSimulator takes the premise sample by sample (Step)");
+  CheckOptions(options, 0);
   impl_->model = model;
   impl_->options = options;
   if (model.realisation == TsRealisation::kParallel) {
@@ -574,7 +606,12 @@ StreamingSimulator::StreamingSimulator(StreamingSimulator&&) noexcept = default;
 StreamingSimulator& StreamingSimulator::operator=(StreamingSimulator&&) noexcept = default;
 
 double StreamingSimulator::Step(double t_s, double voltage_V) {
-  return impl_->shares ? impl_->StepParallel(t_s, voltage_V) : impl_->Step(t_s, voltage_V);
+  return Step(t_s, voltage_V, voltage_V);
+}
+
+double StreamingSimulator::Step(double t_s, double voltage_V, double premise_V) {
+  return impl_->shares ? impl_->StepParallel(t_s, voltage_V, premise_V)
+                       : impl_->Step(t_s, voltage_V, premise_V);
 }
 
 const std::vector<double>& StreamingSimulator::memberships() const {
@@ -598,7 +635,7 @@ std::vector<double> SimulateUniform(const TsModel& model, double dt_s,
                                     const SimulationOptions& options,
                                     std::vector<double>* memberships) {
   CheckModel(model);
-  CheckResolution(options);
+  CheckOptions(options, voltage_V.size());
   if (!(dt_s > 0.0) || !std::isfinite(dt_s))
     throw std::invalid_argument("sample period must be finite and > 0");
   // The vectorised test first (an identification simulates the same input thousands of
@@ -639,12 +676,16 @@ std::vector<double> Simulate(const TsModel& model, std::span<const double> t_s,
   double dt_s = 0.0;
   if (IsUniformGrid(t_s, &dt_s))
     return SimulateUniform(model, dt_s, voltage_V, options, memberships);
-  StreamingSimulator simulator(model, options);
+  CheckOptions(options, voltage_V.size());
+  SimulationOptions streaming = options;
+  streaming.premise_V = {};
+  StreamingSimulator simulator(model, streaming);
   std::vector<double> y(t_s.size());
   const size_t m = model.rules.size();
   if (memberships) memberships->resize(t_s.size() * m);
   for (size_t k = 0; k < t_s.size(); ++k) {
-    y[k] = simulator.Step(t_s[k], voltage_V[k]);
+    y[k] = simulator.Step(t_s[k], voltage_V[k],
+                          options.premise_V.empty() ? voltage_V[k] : options.premise_V[k]);
     if (memberships)
       std::copy(simulator.memberships().begin(), simulator.memberships().end(),
                 memberships->begin() + static_cast<long>(k * m));

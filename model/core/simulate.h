@@ -34,6 +34,13 @@ struct SimulationOptions {
   // coarser one on inputs that vary continuously, so that a simulation inside a fit
   // discretises a few hundred operating points rather than thousands.
   double scheduling_resolution_V = kSchedulingResolution_V;
+  // The voltage the operating point follows, sample by sample (as long as the voltage);
+  // empty: the voltage itself. An effect that scales the drive (wear: the gel answers each
+  // volt with less bending) leaves the operating point where the applied voltage puts it,
+  // so a model is driven with the worn voltage and scheduled on the applied one. Before the
+  // first sample it is the voltage before it (initial_voltage_V, or the first premise
+  // sample with start_in_steady_state).
+  std::span<const double> premise_V = {};
 };
 
 // The scheduling resolution for an input whose largest |u| is max_abs_V:
@@ -79,6 +86,9 @@ class StreamingSimulator {
 
   // Preconditions: t_s > previous t_s; both finite.
   double Step(double t_s, double voltage_V);
+  // As above, the operating point following premise_V rather than the voltage
+  // (SimulationOptions::premise_V).
+  double Step(double t_s, double voltage_V, double premise_V);
   // Normalised memberships in force after the last Step.
   const std::vector<double>& memberships() const;
 

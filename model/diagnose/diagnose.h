@@ -88,7 +88,10 @@
 // share the formulas of cycle degradation and polarity asymmetry, and its drift is a
 // warm-up plus a linear trend like the catalogue's), and on the effect battery of
 // tests/effect_battery.h (tests/diagnose_battery_test.cc, bench/diagnose_battery), whose
-// effects are formulated otherwise than any catalogue entry.
+// effects are formulated otherwise than any catalogue entry. One comes close: its wear, a
+// loss linear in the square root of the charge, and the catalogue's degradation with
+// exponent 0.5, exponential in it, differ by under 1 % of the gain while the loss is
+// under 10 %.
 //
 // Deterministic: no random numbers; the same input gives the same findings.
 #pragma once

@@ -283,6 +283,8 @@ std::string Explain(const Effect& e, const Data& data, std::span<const double> d
     case EffectKind::kCycleDegradation:
       text = "the response shrinks as charge is transferred: by the end of " + recordings +
              Format(" the gain is %.1f %% lower than at the start", 100.0 * e.params[0]) +
+             (e.params[1] < 0.9 ? Format(", lost fastest at first (as charge^%.2f)", e.params[1])
+                                : std::string(", lost at a steady rate per charge")) +
              " (up to " + Mm(peak) + " at the last cycles): cycle degradation";
       break;
     case EffectKind::kHysteresis:

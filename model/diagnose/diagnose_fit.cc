@@ -49,15 +49,18 @@ double RmsOver(std::span<const double> r, const std::vector<size_t>& index) {
 // The recording as the diagnosis sees it
 // -----------------------------------------------------------------------------------------
 
-std::vector<double> Data::SimulateFromRest(const TsModel& model,
-                                           const std::vector<double>& u) const {
-  if (Recordings() == 1) return Simulate(model, rec->t_s, u, Simulation());
+std::vector<double> Data::SimulateFromRest(const TsModel& model, const std::vector<double>& u,
+                                           const std::vector<double>& premise) const {
+  SimulationOptions options = Simulation();
+  options.premise_V = premise;
+  if (Recordings() == 1) return Simulate(model, rec->t_s, u, options);
   std::vector<double> y;
   y.reserve(u.size());
-  const std::span<const double> t(rec->t_s), v(u);
+  const std::span<const double> t(rec->t_s), v(u), p(premise);
   for (size_t j = 0; j < Recordings(); ++j) {
+    if (!premise.empty()) options.premise_V = p.subspan(Begin(j), End(j) - Begin(j));
     const std::vector<double> part = Simulate(model, t.subspan(Begin(j), End(j) - Begin(j)),
-                                              v.subspan(Begin(j), End(j) - Begin(j)), Simulation());
+                                              v.subspan(Begin(j), End(j) - Begin(j)), options);
     y.insert(y.end(), part.begin(), part.end());
   }
   return y;
@@ -95,11 +98,16 @@ std::vector<double> Predict(const Data& data, const Augmented& a,
   bool any_input = false;
   for (const Effect& e : a.effects) any_input |= IsInputEffect(e.kind);
   // The voltage the gel responds to. Input effects act on the recordings in order, as one
-  // actuator lived them (a degradation's charge accumulates from one to the next).
-  std::vector<double> u = rec.voltage_V;
+  // actuator lived them (a degradation's charge accumulates from one to the next). A gain
+  // effect leaves the operating point to the voltage before it (premise, once one acts).
+  std::vector<double> u = rec.voltage_V, premise;
   for (const auto* list : {&data.given, &a.effects})
-    for (const Effect& e : *list)
-      if (IsInputEffect(e.kind)) ApplyInputEffect(e, rec.t_s, &u);
+    for (const Effect& e : *list) {
+      if (!IsInputEffect(e.kind)) continue;
+      if (IsGainEffect(e.kind) && premise.empty()) premise = u;
+      if (!premise.empty() && !IsGainEffect(e.kind)) ApplyInputEffect(e, rec.t_s, &premise);
+      ApplyInputEffect(e, rec.t_s, &u);
+    }
   auto output_effect = [&](const Effect& e, std::vector<double>* y) {
     if (!IsInputEffect(e.kind)) data.ApplyOutput(e, y);
   };
@@ -107,7 +115,7 @@ std::vector<double> Predict(const Data& data, const Augmented& a,
   if (!any_input && cache && !a.refit) {
     y = *cache;  // the baseline with the given effects
   } else {
-    y = data.SimulateFromRest(a.Baseline(), u);
+    y = data.SimulateFromRest(a.Baseline(), u, premise);
     for (const Effect& e : data.given) output_effect(e, &y);
   }
   for (const Effect& e : a.effects) output_effect(e, &y);
@@ -418,8 +426,11 @@ std::vector<ParameterSpec> SpecsFor(EffectKind kind, const Data& data) {
       return {{0.0, kind == EffectKind::kBackRelaxation ? 0.95 : 2.0, {0.03, 0.2}},
               {tau_lo, tau_hi, taus()}};
     case EffectKind::kCycleDegradation:
-      // Degradation only: a gain that grows with use is not this effect.
-      return {{0.0, 0.95, {0.01, 0.1}}};
+      // Degradation only: a gain that grows with use is not this effect. Its exponent from
+      // a steady loss per charge (1, the start) down to wear nearly done at first (0.2),
+      // never accelerating: up to 3, a late loss took the place of a faint saturation on
+      // levels that rose late in a recording (independent simulator, faint set).
+      return {{0.0, 0.95, {0.01, 0.1}}, {0.2, 1.0, {1.0}}};
     case EffectKind::kHysteresis:
       return {{0.0, 0.5 * range_mm + 1e-9, {std::max(2.0 * data.noise_mm, 1e-6)}},
               {1e-3 * range_mm + 1e-9,

@@ -43,7 +43,10 @@ struct Data {
   size_t End(size_t j) const { return starts.empty() ? rec->t_s.size() : starts[j + 1]; }
   // The model driven by u from rest in every recording (each starts at rest: the state
   // never carries from one recording into the next).
-  std::vector<double> SimulateFromRest(const TsModel& model, const std::vector<double>& u) const;
+  // premise: the voltage the operating point follows (SimulationOptions::premise_V;
+  // empty: u).
+  std::vector<double> SimulateFromRest(const TsModel& model, const std::vector<double>& u,
+                                       const std::vector<double>& premise = {}) const;
   // An output effect: a relaxation or a hysteresis state starts afresh in each recording
   // (each starts at rest); a sensor drift runs through them in order (one sensor over a
   // session: its warm-up happens once, and the gaps between recordings do not count).

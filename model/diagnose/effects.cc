@@ -51,6 +51,10 @@ struct EffectInfo {
   bool input_side;                   // changes the voltage the model is driven with
   std::vector<Range> ranges;         // of each parameter, where its model means something
   const char* scale_name = nullptr;  // Effect::scale in a model file, if it has one
+  // A trailing parameter a model file may leave out, and its value then: one added to an
+  // effect after files were written with it, whose value here gives the earlier model.
+  const char* optional_param = nullptr;
+  double optional_default = 0.0;
 };
 
 const std::vector<EffectInfo>& Catalogue() {
@@ -79,11 +83,15 @@ const std::vector<EffectInfo>& Catalogue() {
        "Repeated actuation degrades the gel and the electrode interface (ion depletion, "
        "delamination), so each volt moves the beam less as charge is transferred. "
        "Residual: amplitude shrinks from cycle to cycle in proportion to the response. "
-       "Model: drive voltage u (1 - loss)^(Q(t) / Q_end), Q = integral |u| dt.",
-       {"loss"},
+       "Model: drive voltage u (1 - loss)^((Q(t) / Q_end)^exponent), Q = integral |u| dt, "
+       "the operating point still the applied voltage's; exponent 1 loses at a steady "
+       "rate per charge, below 1 fastest at first (wear limited by diffusion).",
+       {"loss", "exponent"},
        true,
-       {kFraction},
-       "charge_Vs"},
+       {kFraction, kPositive},
+       "charge_Vs",
+       "exponent",
+       1.0},
       {EffectKind::kHysteresis,
        "hysteresis",
        "Friction in the clamp and in the polymer network make the beam lag by a fixed "
@@ -197,9 +205,11 @@ double MemorylessInput(const Effect& e, double v) {
   }
 }
 
-// cycle_degradation's gain at charge q_Vs: (1 - loss)^(q / scale).
+// cycle_degradation's gain at charge q_Vs: (1 - loss)^((q / scale)^exponent).
 double DegradationGain(const Effect& e, double q_Vs, double scale_Vs) {
-  return std::exp(std::log(std::max(1e-9, 1.0 - e.params[0])) * q_Vs / scale_Vs);
+  const double x = q_Vs / scale_Vs;
+  const double worn = e.params[1] == 1.0 ? x : (x > 0.0 ? std::pow(x, e.params[1]) : 0.0);
+  return std::exp(std::log(std::max(1e-9, 1.0 - e.params[0])) * worn);
 }
 
 }  // namespace
@@ -322,10 +332,15 @@ double AugmentedStreamingSimulator::StepOutput(const Effect& e, State* state, do
 }
 
 double AugmentedStreamingSimulator::Step(double t_s, double voltage_V) {
-  double u = voltage_V;
-  for (size_t i = 0; i < effects_.size(); ++i)
-    if (IsInputEffect(effects_[i].kind)) u = StepInput(effects_[i], &states_[i], t_s, u);
-  double y = simulator_.Step(t_s, u);
+  // As Predict (diagnose_fit.cc): a gain effect scales the drive u, not the premise p.
+  double u = voltage_V, p = voltage_V;
+  for (size_t i = 0; i < effects_.size(); ++i) {
+    const Effect& e = effects_[i];
+    if (!IsInputEffect(e.kind)) continue;
+    if (!IsGainEffect(e.kind)) p = MemorylessInput(e, p);
+    u = StepInput(e, &states_[i], t_s, u);
+  }
+  double y = simulator_.Step(t_s, u, p);
   for (size_t i = 0; i < effects_.size(); ++i)
     if (!IsInputEffect(effects_[i].kind)) y = StepOutput(effects_[i], &states_[i], t_s, y);
   return y;
@@ -379,8 +394,13 @@ Effect EffectFromAugmentation(const Augmentation& augmentation) {
   Effect effect;
   if (!ParseEffectName(augmentation.effect, &effect.kind))
     throw InputError("augmentation \"" + augmentation.effect + "\": unknown effect");
-  for (const std::string& name : Entry(effect.kind).params) {
+  const EffectInfo& info = Entry(effect.kind);
+  for (const std::string& name : info.params) {
     const auto it = augmentation.params.find(name);
+    if (it == augmentation.params.end() && info.optional_param && name == info.optional_param) {
+      effect.params.push_back(info.optional_default);
+      continue;
+    }
     if (it == augmentation.params.end() || !it->is_number() || !std::isfinite(it->get<double>()))
       throw InputError("augmentation \"" + augmentation.effect + "\": parameter " + name +
                        " must be a finite number");
@@ -423,5 +443,7 @@ Augmentation AugmentationOf(const Effect& effect) {
 }
 
 bool IsInputEffect(EffectKind kind) { return Entry(kind).input_side; }
+
+bool IsGainEffect(EffectKind kind) { return kind == EffectKind::kCycleDegradation; }
 
 }  // namespace flexid::model
