@@ -136,7 +136,8 @@ const std::vector<EffectInfo>& Catalogue() {
        "polarity_asymmetry",
        "Negative voltage moves the beam with another gain than positive (asymmetric "
        "electrodes, different mobile ions on either side). Residual: proportional to the "
-       "response during negative voltage only. Model: u < 0 driven as ratio u.",
+       "response during negative voltage only. Model: u < 0 driven as ratio u, the operating "
+       "point still the applied voltage's.",
        {"ratio"},
        true,
        {kPositive}},
@@ -444,6 +445,8 @@ Augmentation AugmentationOf(const Effect& effect) {
 
 bool IsInputEffect(EffectKind kind) { return Entry(kind).input_side; }
 
-bool IsGainEffect(EffectKind kind) { return kind == EffectKind::kCycleDegradation; }
+bool IsGainEffect(EffectKind kind) {
+  return kind == EffectKind::kCycleDegradation || kind == EffectKind::kPolarityAsymmetry;
+}
 
 }  // namespace flexid::model

@@ -73,8 +73,9 @@ std::vector<Effect> EffectsOf(const ModelDocument& document, const std::string& 
 bool IsInputEffect(EffectKind kind);
 // True for input effects that scale the drive and leave the operating point alone: the
 // model is scheduled on the voltage before them (SimulationOptions::premise_V). Wear
-// (cycle_degradation) makes each applied volt bend the gel less; the state of the gel and
-// its electrolyte that the rules stand for is still the applied voltage's.
+// (cycle_degradation) makes each applied volt bend the gel less, and a polarity asymmetry
+// gives negative volts another gain; the state of the gel and its electrolyte that the
+// rules stand for is still the applied voltage's.
 bool IsGainEffect(EffectKind kind);
 // An input effect applied to the voltage column (t_s the sample times, in s; *voltage_V in
 // place). Output effects leave it alone.
