@@ -109,6 +109,20 @@ long PremiseDelaySamples(const TsModel& model, double dt_s) {
   return static_cast<long>(std::ceil(model.scheduling_delay_s / dt_s - 1e-9));
 }
 
+// Every value of a voltage series finite, else std::invalid_argument naming what and the
+// sample. The vectorised test first (an identification simulates the same input thousands
+// of times): v - v is 0 for every finite v and NaN otherwise, and Eigen sums in packets
+// (allFinite() compiles to a scalar loop); the loop only to name the sample.
+void CheckFinite(std::span<const double> series_V, const char* what) {
+  const Eigen::Map<const Eigen::ArrayXd> v(series_V.data(),
+                                           static_cast<Eigen::Index>(series_V.size()));
+  if ((v - v).sum() == 0.0) return;
+  for (size_t k = 0; k < series_V.size(); ++k)
+    if (!std::isfinite(series_V[k]))
+      throw std::invalid_argument(std::string("non-finite ") + what + " at sample " +
+                                  std::to_string(k));
+}
+
 // The scheduling resolution, and a premise series (SimulationOptions::premise_V) as long
 // as the voltage (samples) and finite.
 void CheckOptions(const SimulationOptions& options, size_t samples) {
@@ -118,9 +132,7 @@ void CheckOptions(const SimulationOptions& options, size_t samples) {
   if (options.premise_V.size() != samples)
     throw std::invalid_argument("premise voltage has " + std::to_string(options.premise_V.size()) +
                                 " samples, the voltage " + std::to_string(samples));
-  for (size_t k = 0; k < samples; ++k)
-    if (!std::isfinite(options.premise_V[k]))
-      throw std::invalid_argument("non-finite premise voltage at sample " + std::to_string(k));
+  CheckFinite(options.premise_V, "premise voltage");
 }
 
 // The frozen model at one scheduling value, realised (state_space.h).
@@ -638,15 +650,7 @@ std::vector<double> SimulateUniform(const TsModel& model, double dt_s,
   CheckOptions(options, voltage_V.size());
   if (!(dt_s > 0.0) || !std::isfinite(dt_s))
     throw std::invalid_argument("sample period must be finite and > 0");
-  // The vectorised test first (an identification simulates the same input thousands of
-  // times): u - u is 0 for every finite u and NaN otherwise, and Eigen sums in packets
-  // (allFinite() compiles to a scalar loop); the loop only to name the sample.
-  const Eigen::Map<const Eigen::ArrayXd> u(voltage_V.data(),
-                                           static_cast<Eigen::Index>(voltage_V.size()));
-  if (!((u - u).sum() == 0.0))
-    for (size_t k = 0; k < voltage_V.size(); ++k)
-      if (!std::isfinite(voltage_V[k]))
-        throw std::invalid_argument("non-finite voltage at sample " + std::to_string(k));
+  CheckFinite(voltage_V, "voltage");
   std::vector<double> y(voltage_V.size());
   if (voltage_V.empty()) return y;
   if (model.realisation == TsRealisation::kParallel) {

@@ -43,12 +43,17 @@ std::string Range::Text() const {
   return (lower_open ? "(" : "[") + number(lower) + ", " + number(upper) + (upper_open ? ")" : "]");
 }
 
+// What an effect changes: the deflection the model predicts, the voltage the model is driven
+// with and scheduled on, or the drive alone (a gain: the operating point stays the applied
+// voltage's, SimulationOptions::premise_V).
+enum class Acts { kOnDeflection, kOnVoltage, kOnDrive };
+
 struct EffectInfo {
   EffectKind kind;
   const char* name;
   const char* description;
   std::vector<std::string> params;
-  bool input_side;                   // changes the voltage the model is driven with
+  Acts acts;
   std::vector<Range> ranges;         // of each parameter, where its model means something
   const char* scale_name = nullptr;  // Effect::scale in a model file, if it has one
   // A trailing parameter a model file may leave out, and its value then: one added to an
@@ -67,7 +72,7 @@ const std::vector<EffectInfo>& Catalogue() {
        "negative after them, with one slow time constant. Model: y - fraction * s, "
        "tau_s s' = y - s (an extra slow pole-zero pair, gain scaled by 1 - fraction).",
        {"fraction", "tau_s"},
-       false,
+       Acts::kOnDeflection,
        {kFraction, kPositive}},
       {EffectKind::kCreep,
        "creep",
@@ -76,7 +81,7 @@ const std::vector<EffectInfo>& Catalogue() {
        "grows during holds with one slow time constant, positive after them. Model: "
        "y + fraction * s, tau_s s' = y - s.",
        {"fraction", "tau_s"},
-       false,
+       Acts::kOnDeflection,
        {kNonNegative, kPositive}},
       {EffectKind::kCycleDegradation,
        "cycle_degradation",
@@ -87,7 +92,7 @@ const std::vector<EffectInfo>& Catalogue() {
        "the operating point still the applied voltage's; exponent 1 loses at a steady "
        "rate per charge, below 1 fastest at first (wear limited by diffusion).",
        {"loss", "exponent"},
-       true,
+       Acts::kOnDrive,
        {kFraction, kPositive},
        "charge_Vs",
        "exponent",
@@ -100,7 +105,7 @@ const std::vector<EffectInfo>& Catalogue() {
        "reversal, persisting in holds and at rest. Model: Dahl's friction model on the "
        "model's deflection y: dh/dy = (sign(dy) - h) / reach_mm, output y - width_mm h.",
        {"width_mm", "reach_mm"},
-       false,
+       Acts::kOnDeflection,
        {kNonNegative, kPositive}},
       {EffectKind::kElectrolysisSaturation,
        "electrolysis_saturation",
@@ -110,7 +115,7 @@ const std::vector<EffectInfo>& Catalogue() {
        "proportional to the voltage above the onset. Model: |u| above onset_V scaled by "
        "slope.",
        {"onset_V", "slope"},
-       true,
+       Acts::kOnVoltage,
        {kNonNegative, Range{0.0, 1.0}}},
       {EffectKind::kDeadZone,
        "dead_zone",
@@ -119,7 +124,7 @@ const std::vector<EffectInfo>& Catalogue() {
        "at every level is lower by the same voltage's worth, relatively most at low "
        "levels. Model: drive sign(u) max(|u| - threshold_V, 0).",
        {"threshold_V"},
-       true,
+       Acts::kOnVoltage,
        {kNonNegative}},
       {EffectKind::kSensorDrift,
        "sensor_drift",
@@ -129,7 +134,7 @@ const std::vector<EffectInfo>& Catalogue() {
        "Model: drift_mm x + warmup_mm (1 - exp(-t / warmup_tau_s)), x = time as a fraction "
        "of the recording.",
        {"drift_mm", "warmup_mm", "warmup_tau_s"},
-       false,
+       Acts::kOnDeflection,
        {kAny, kAny, kPositive},
        "span_s"},
       {EffectKind::kPolarityAsymmetry,
@@ -139,7 +144,7 @@ const std::vector<EffectInfo>& Catalogue() {
        "response during negative voltage only. Model: u < 0 driven as ratio u, the operating "
        "point still the applied voltage's.",
        {"ratio"},
-       true,
+       Acts::kOnDrive,
        {kPositive}},
   };
   return catalogue;
@@ -206,12 +211,17 @@ double MemorylessInput(const Effect& e, double v) {
   }
 }
 
-// cycle_degradation's gain at charge q_Vs: (1 - loss)^((q / scale)^exponent).
-double DegradationGain(const Effect& e, double q_Vs, double scale_Vs) {
-  const double x = q_Vs / scale_Vs;
-  const double worn = e.params[1] == 1.0 ? x : (x > 0.0 ? std::pow(x, e.params[1]) : 0.0);
-  return std::exp(std::log(std::max(1e-9, 1.0 - e.params[0])) * worn);
-}
+// cycle_degradation's gain at charge q_Vs, (1 - loss)^((q / scale)^exponent), with
+// log(1 - loss) taken once for a series; no pow at exponent 1 (the steady law).
+struct Degradation {
+  explicit Degradation(const Effect& e)
+      : log_keep(std::log(std::max(1e-9, 1.0 - e.params[0]))), exponent(e.params[1]) {}
+  double Gain(double q_Vs, double scale_Vs) const {
+    const double x = q_Vs / scale_Vs;
+    return std::exp(log_keep * (exponent == 1.0 ? x : std::pow(x, exponent)));
+  }
+  double log_keep, exponent;
+};
 
 }  // namespace
 
@@ -228,7 +238,8 @@ void ApplyInputEffect(const Effect& e, std::span<const double> t_s,
   for (size_t k = 1; k < u.size(); ++k)
     q[k] = q[k - 1] + std::abs(u[k - 1]) * (t_s[k] - t_s[k - 1]);
   const double scale = e.scale > 0 ? e.scale : q.back() > 0 ? q.back() : 1.0;  // = OwnScale
-  for (size_t k = 0; k < u.size(); ++k) u[k] *= DegradationGain(e, q[k], scale);
+  const Degradation degradation(e);
+  for (size_t k = 0; k < u.size(); ++k) u[k] *= degradation.Gain(q[k], scale);
 }
 
 double OwnScale(EffectKind kind, std::span<const double> t_s, std::span<const double> voltage_V) {
@@ -297,7 +308,7 @@ double AugmentedStreamingSimulator::StepInput(const Effect& e, State* state, dou
   state->started = true;
   state->last_in = voltage_V;
   state->last_t_s = t_s;
-  return voltage_V * DegradationGain(e, state->charge_Vs, e.scale);
+  return voltage_V * Degradation(e).Gain(state->charge_Vs, e.scale);
 }
 
 double AugmentedStreamingSimulator::StepOutput(const Effect& e, State* state, double t_s,
@@ -443,10 +454,8 @@ Augmentation AugmentationOf(const Effect& effect) {
   return a;
 }
 
-bool IsInputEffect(EffectKind kind) { return Entry(kind).input_side; }
+bool IsInputEffect(EffectKind kind) { return Entry(kind).acts != Acts::kOnDeflection; }
 
-bool IsGainEffect(EffectKind kind) {
-  return kind == EffectKind::kCycleDegradation || kind == EffectKind::kPolarityAsymmetry;
-}
+bool IsGainEffect(EffectKind kind) { return Entry(kind).acts == Acts::kOnDrive; }
 
 }  // namespace flexid::model
