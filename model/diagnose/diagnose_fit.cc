@@ -465,7 +465,7 @@ std::vector<ParameterSpec> SpecsFor(EffectKind kind, const Data& data) {
   return {};
 }
 
-bool Applicable(EffectKind kind, const Data& data, std::string* why) {
+bool Applicable(EffectKind kind, const Data& data, bool trusted_model, std::string* why) {
   const auto& u = data.rec->voltage_V;
   size_t positive = 0, negative = 0;
   for (double v : u) {
@@ -480,9 +480,19 @@ bool Applicable(EffectKind kind, const Data& data, std::string* why) {
       }
       return true;
     case EffectKind::kElectrolysisSaturation:
-    case EffectKind::kDeadZone:
-      if (data.abs_levels_V.size() < 2) {
+      // Against a trusted model the drive lost at one level is measured against the
+      // model's gain there: the onset and the slope trade off, the loss does not
+      // (SizeDetermined). Without one, the identified baseline takes any gain.
+      if (data.abs_levels_V.size() < 2 && !trusted_model) {
         *why = "needs two or more voltage levels (one level cannot tell it from a gain error)";
+        return false;
+      }
+      return true;
+    case EffectKind::kDeadZone:
+      // Its signature is between levels: the same voltage's worth lost at each, relatively
+      // most at the lowest. At one level it is any loss of gain.
+      if (data.abs_levels_V.size() < 2) {
+        *why = "needs two or more voltage levels (one level cannot show a threshold)";
         return false;
       }
       return true;
