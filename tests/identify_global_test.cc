@@ -313,5 +313,19 @@ TEST(IdentifyGlobal, SmoothRulesSayWhenTheirHandOverIsNotInTheData) {
   EXPECT_TRUE(said) << ::testing::PrintToString(e.warnings);
 }
 
+// The same plant through a dense staircase: its gain grows from 2 to 4 V over four visited
+// gaps, which trace the hand-over, so no gap is said to hide it.
+TEST(IdentifyGlobal, SmoothRulesThroughDenseLevelsDoNotWarnOfUnseenHandOvers) {
+  GlobalIdentifyOptions options;
+  options.rules_at_most = 2;
+  const GlobalEstimate e = IdentifyGlobalTs(
+      {Staircase("dense.csv", 10, {0.0, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0}),
+       Staircase("dense-down.csv", 11, {0.0, 5.0, 4.5, 4.0, 3.5, 3.0, 2.5, 2.0, 1.5, 1.0})},
+      options);
+  ASSERT_EQ(e.structure.membership, MembershipShape::kGaussian) << e.structure.Describe();
+  for (const std::string& w : e.warnings)
+    EXPECT_EQ(w.find("where the rules hand over is not in the data"), std::string::npos) << w;
+}
+
 }  // namespace
 }  // namespace flexid::model

@@ -210,7 +210,10 @@ void GlobalSearch::WarnAboutLevels() {
     const auto& k = current.knots_V;
     // Smooth rules hand over between their centres, wherever the fit put the hand-over:
     // the gain is read off the model at each visited level, and a change of gain between
-    // two neighbouring visited levels is where the data do not show it.
+    // two neighbouring visited levels is where the data do not show it, unless the change
+    // is spread over the levels around it too (a gain that grows with the voltage through
+    // a dense staircase is traced by its levels: over twice either neighbouring gap's
+    // change, it happens within the one gap).
     if (current.membership == MembershipShape::kGaussian) {
       auto gain_at = [&](double v) {
         std::vector<double> mu;
@@ -220,9 +223,16 @@ void GlobalSearch::WarnAboutLevels() {
         return g;
       };
       const std::vector<double>& levels = result.levels_V;
+      std::vector<double> gains;
+      for (double v : levels) gains.push_back(gain_at(v));
+      auto change = [&](size_t gap) {
+        return gap + 1 < gains.size() ? std::abs(gains[gap + 1] - gains[gap]) : 0.0;
+      };
       for (size_t i = 0; i + 1 < levels.size(); ++i) {
-        const double a = levels[i], b = levels[i + 1], ga = gain_at(a), gb = gain_at(b);
-        if (std::abs(gb - ga) > 0.1 * std::max(std::abs(ga), std::abs(gb)))
+        const double a = levels[i], b = levels[i + 1], ga = gains[i], gb = gains[i + 1];
+        const double around = std::max(i > 0 ? change(i - 1) : 0.0, change(i + 1));
+        if (std::abs(gb - ga) > 0.1 * std::max(std::abs(ga), std::abs(gb)) &&
+            std::abs(gb - ga) > 2.0 * around)
           result.warnings.push_back(
               "between " + Volts(a) + " and " + Volts(b) + " V the DC gain changes from " +
               Volts(ga) + " to " + Volts(gb) +
