@@ -407,8 +407,9 @@ std::vector<ParameterSpec> SpecsFor(EffectKind kind, const Data& data) {
         std::minmax_element(data.rec->deflection_mm.begin(), data.rec->deflection_mm.end());
     range_mm = *hi - *lo;
   }
-  // Relaxations faster than 10 s belong to the actuator's own charging dynamics (the seed's
-  // fast modes), not to a slow effect after the response.
+  // A relaxation is at least a second (5 samples when coarser): faster ones are the
+  // actuator's own charging dynamics (the seed's fast modes). With a trusted model one
+  // whose time constant may be 0 is not named (SizeDetermined: a change of gain).
   // A relaxation slower than half the recording completes neither within a hold nor
   // between holds: over the recording it is a trend, which a sensor drift explains as
   // well (with up to 3 times the duration allowed, drifts were read as creep).
