@@ -15,7 +15,6 @@
 #include "model/core/model_file.h"
 #include "model/core/presets.h"
 #include "model/core/recording.h"
-#include "model/diagnose/diagnose_explain.h"
 
 namespace flexid {
 namespace {
@@ -123,54 +122,6 @@ TEST(DiagnoseCatalogue, AugmentationsRoundTripAndBadOnesAreNamed) {
   EXPECT_THROW(
       model::EffectFromAugmentation({"cycle_degradation", {{"loss", 0.2}, {"exponent", -1.0}}}),
       model::InputError);
-}
-
-// Against a trusted model a recording at one voltage level still shows a drive lost
-// there: the clean 5 V square wave of the shipped set with every deflection 5 % short is
-// an electrolysis saturation (the model's gain is the reference). A dead zone is not
-// tried at one level (its signature is between levels), and back-relaxation, which a
-// relaxation as fast as the response turns into the same loss of gain, loses.
-TEST(DiagnoseSingleLevel, AGainLostAtOneLevelIsADriveLostAgainstATrustedModel) {
-  model::Recording rec =
-      model::ReadRecordingCsv(std::string(FLEXID_SOURCE_DIR) + "/examples/concealed/rec-02.csv");
-  for (double& y : rec.deflection_mm) y *= 0.95;
-  const model::TsModel trusted = model::AsTsModel(
-      model::ReadModelFile(std::string(FLEXID_SOURCE_DIR) + "/examples/seed-8V.json"));
-  const model::Diagnosis d = model::Diagnose(rec, trusted);
-  EXPECT_EQ(d.verdict, "electrolysis_saturation");
-  bool dead_zone_reported = false;
-  for (const model::CandidateReport& c : d.candidates)
-    if (c.name == "dead_zone") {
-      dead_zone_reported = true;
-      EXPECT_FALSE(c.claimed);
-      EXPECT_NE(c.reason.find("not tried"), std::string::npos) << c.reason;
-    }
-  EXPECT_TRUE(dead_zone_reported);
-}
-
-// A relaxation whose time constant's interval reaches 0 may be a change of gain, not a
-// back-relaxation or a creep: its size is then not determined, however well its fraction
-// is.
-TEST(DiagnoseSize, ARelaxationNeedsADeterminedTimeConstant) {
-  for (model::EffectKind kind : {model::EffectKind::kBackRelaxation, model::EffectKind::kCreep}) {
-    const model::Effect relaxation{kind, {0.05, 2.0}};
-    Eigen::MatrixXd covariance = Eigen::MatrixXd::Zero(2, 2);
-    covariance(0, 0) = 1e-8;  // fraction 0.05 +- 0.0002
-    covariance(1, 1) = 2.25;  // tau_s 2 +- 2.9
-    std::string text;
-    EXPECT_FALSE(model::diagnosis::SizeDetermined(relaxation, covariance, Eigen::MatrixXd(), 600.0,
-                                                  5.0, &text));
-    EXPECT_NE(text.find("time constant is not determined"), std::string::npos) << text;
-    covariance(1, 1) = 0.25;  // tau_s 2 +- 0.98
-    text.clear();
-    EXPECT_TRUE(model::diagnosis::SizeDetermined(relaxation, covariance, Eigen::MatrixXd(), 600.0,
-                                                 5.0, &text))
-        << text;
-    covariance(0, 0) = 1.0;  // the fraction itself not determined
-    text.clear();
-    EXPECT_FALSE(model::diagnosis::SizeDetermined(relaxation, covariance, Eigen::MatrixXd(), 600.0,
-                                                  5.0, &text));
-  }
 }
 
 TEST(DiagnoseInput, ShortOrConstantRecordingsAreRefused) {

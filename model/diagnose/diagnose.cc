@@ -333,7 +333,7 @@ struct Diagnoser {
     for (EffectKind kind : AllEffects()) {
       if (kind == EffectKind::kCreep) continue;  // fitted together with back-relaxation
       std::string reason;
-      if (Applicable(kind, data, trusted_model.has_value(), &reason)) {
+      if (Applicable(kind, data, &reason)) {
         kinds.push_back(kind);
       } else {
         CandidateReport report;

@@ -165,15 +165,8 @@ bool SizeDetermined(const Effect& effect, const Eigen::MatrixXd& covariance,
                        [](const std::vector<double>& p) { return p[0]; }});
       break;
   }
-  // A relaxation must also be one: its time constant's interval must exclude 0. One that
-  // may be instantaneous is a change of gain at each level (a drive lost to saturation,
-  // against a trusted model's dynamics), and one that may be as slow as the recording is
-  // a trend; neither is the fall-back or creep after the response that names it.
-  const bool relaxation =
-      effect.kind == EffectKind::kBackRelaxation || effect.kind == EffectKind::kCreep;
-  if (relaxation) sizes.push_back({"tau_s", [](const std::vector<double>& p) { return p[1]; }});
   const long q = covariance.rows();
-  bool determined = false, time_constant = !relaxation;
+  bool determined = false;
   for (const auto& [name, size] : sizes) {
     const double value = size(effect.params);
     double half_width = kInf;
@@ -206,17 +199,9 @@ bool SizeDetermined(const Effect& effect, const Eigen::MatrixXd& covariance,
     *text += name + " " + Format("%.3g", value) +
              (std::isfinite(half_width) ? " +- " + Format("%.2g", half_width)
                                         : std::string(" not determined"));
-    const bool excludes_none = std::isfinite(half_width) && std::abs(value) > half_width;
-    if (relaxation && name == "tau_s")
-      time_constant = excludes_none;
-    else
-      determined |= excludes_none;
+    determined |= std::isfinite(half_width) && std::abs(value) > half_width;
   }
-  if (determined && !time_constant)
-    *text +=
-        ": the relaxation's time constant is not determined, so it cannot be told from a "
-        "change of gain or a trend";
-  return determined && time_constant;
+  return determined;
 }
 
 std::vector<TimeSpan> WhereItActs(const Data& data, std::span<const double> delta,

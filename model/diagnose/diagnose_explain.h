@@ -27,15 +27,13 @@ std::vector<TimeSpan> Spans(const Recording& rec, std::span<const double> delta,
 // excludes none. The size is a function of the effect's parameters: its fraction, loss,
 // width or threshold; 1 - slope or 1 - ratio; a sensor drift's displacement at the middle
 // or at the end of the recording (its linear and warm-up parts are correlated, neither
-// need be determined alone). A back-relaxation's or creep's time constant must be
-// determined too: one that may be 0 is a change of gain. The interval comes from the
-// fit's covariance (the last parameters are the effect's) by the delta method. `text`
-// says what was found. Used with a trusted model, whose effect fits hold the baseline:
-// with an identified baseline refitted with the effect, a dozen raw polynomial
-// coefficients share the covariance and its Wald intervals mean little (a saturation's
-// 1 - slope came out 0.83 +- 5.6e4). There the likelihood ratio against the baseline
-// refitted without the effect is the profile test of size = none, at a stricter level
-// than 95 %.
+// need be determined alone). The interval comes from the fit's covariance (the last
+// parameters are the effect's) by the delta method. `text` says what was found.
+// Used with a trusted model, whose effect fits hold the baseline: with an identified
+// baseline refitted with the effect, a dozen raw polynomial coefficients share the
+// covariance and its Wald intervals mean little (a saturation's 1 - slope came out
+// 0.83 +- 5.6e4). There the likelihood ratio against the baseline refitted without the
+// effect is the profile test of size = none, at a stricter level than 95 %.
 bool SizeDetermined(const Effect& effect, const Eigen::MatrixXd& covariance,
                     const Eigen::MatrixXd& null_space, double duration_s, double top_V,
                     std::string* text);

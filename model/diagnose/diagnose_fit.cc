@@ -408,8 +408,7 @@ std::vector<ParameterSpec> SpecsFor(EffectKind kind, const Data& data) {
     range_mm = *hi - *lo;
   }
   // A relaxation is at least a second (5 samples when coarser): faster ones are the
-  // actuator's own charging dynamics (the seed's fast modes). With a trusted model one
-  // whose time constant may be 0 is not named (SizeDetermined: a change of gain).
+  // actuator's own charging dynamics (the seed's fast modes).
   // A relaxation slower than half the recording completes neither within a hold nor
   // between holds: over the recording it is a trend, which a sensor drift explains as
   // well (with up to 3 times the duration allowed, drifts were read as creep).
@@ -466,7 +465,7 @@ std::vector<ParameterSpec> SpecsFor(EffectKind kind, const Data& data) {
   return {};
 }
 
-bool Applicable(EffectKind kind, const Data& data, bool trusted_model, std::string* why) {
+bool Applicable(EffectKind kind, const Data& data, std::string* why) {
   const auto& u = data.rec->voltage_V;
   size_t positive = 0, negative = 0;
   for (double v : u) {
@@ -481,19 +480,9 @@ bool Applicable(EffectKind kind, const Data& data, bool trusted_model, std::stri
       }
       return true;
     case EffectKind::kElectrolysisSaturation:
-      // Against a trusted model the drive lost at one level is measured against the
-      // model's gain there: the onset and the slope trade off, the loss does not
-      // (SizeDetermined). Without one, the identified baseline takes any gain.
-      if (data.abs_levels_V.size() < 2 && !trusted_model) {
-        *why = "needs two or more voltage levels (one level cannot tell it from a gain error)";
-        return false;
-      }
-      return true;
     case EffectKind::kDeadZone:
-      // Its signature is between levels: the same voltage's worth lost at each, relatively
-      // most at the lowest. At one level it is any loss of gain.
       if (data.abs_levels_V.size() < 2) {
-        *why = "needs two or more voltage levels (one level cannot show a threshold)";
+        *why = "needs two or more voltage levels (one level cannot tell it from a gain error)";
         return false;
       }
       return true;

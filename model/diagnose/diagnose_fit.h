@@ -144,9 +144,8 @@ std::vector<double> WhatTheLastEffectAdds(const Data& data, const FitResult& fit
 // Bounds and starting values of one effect's parameters for this recording.
 std::vector<ParameterSpec> SpecsFor(EffectKind kind, const Data& data);
 
-// Can the recording show the effect at all (against a trusted model, or an identified
-// baseline)?
-bool Applicable(EffectKind kind, const Data& data, bool trusted_model, std::string* why);
+// Can the recording show the effect at all?
+bool Applicable(EffectKind kind, const Data& data, std::string* why);
 
 // The identified baseline may fall back by at most this share of a step (identify_global.h,
 // max_fall_back): the 1 % below which ReadAgainstPhysics reads no fall-back.
