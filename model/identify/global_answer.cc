@@ -230,9 +230,9 @@ void GlobalSearch::WarnAboutLevels() {
       };
       for (size_t i = 0; i + 1 < levels.size(); ++i) {
         const double a = levels[i], b = levels[i + 1], ga = gains[i], gb = gains[i + 1];
+        const double here = change(i);
         const double around = std::max(i > 0 ? change(i - 1) : 0.0, change(i + 1));
-        if (std::abs(gb - ga) > 0.1 * std::max(std::abs(ga), std::abs(gb)) &&
-            std::abs(gb - ga) > 2.0 * around)
+        if (here > 0.1 * std::max(std::abs(ga), std::abs(gb)) && here > 2.0 * around)
           result.warnings.push_back(
               "between " + Volts(a) + " and " + Volts(b) + " V the DC gain changes from " +
               Volts(ga) + " to " + Volts(gb) +
