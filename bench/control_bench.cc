@@ -19,22 +19,34 @@
 // Per run: the tracking RMSE of the noise-free deflection against the reference (mm, and
 // in % of the reference's standard deviation), the RMS voltage, the charge (integral of
 // |u| dt) and the largest charge in any 220 s window. Then, per plant and reference, the
-// model-based controller's RMSE over the PI's. Deterministic (fixed seeds).
+// model-based controller's RMSE over the PI's. For the sines, what each run's error and
+// voltage are made of: the mean, the component at F (its RMS) and the rest (RMS), scored
+// after the lead-in, and the same of the controller's own model driven by the run's
+// voltages. Deterministic (fixed seeds).
 //
 //   build/bench/control_bench [--svg PATH] [--ts-seed N] [--ts-sweep]
+//                             [--move-weight W] [--effort-weight W] [--replan S]
+//                             [--mismatch-time-constant S]
 //     --svg      the rig's multilevel run: reference, measured and voltage, predictive and PI
 //     --ts-seed  draw the T-S test plant from seed N (default 7): other draws, other plants
 //     --ts-sweep identify the T-S plant's model from its staircase and a square-wave sweep
 //                (0.5 / 4.5 V, 0.01 to 0.4 Hz, 3 cycles each), not the staircase alone
+//     --move-weight, --effort-weight  the predictive and open-loop runs' penalties,
+//                mm^2 per V^2 (model/control/mpc.h; default the controller's)
+//     --replan, --mismatch-time-constant  their replan period (the plan's shortest block)
+//                and the mismatch filter's time constant tau_d, s (mpc.h; default the
+//                controller's)
 #include <chrono>
 #include <cmath>
 #include <complex>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <exception>
 #include <fstream>
 #include <memory>
 #include <numbers>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -95,11 +107,15 @@ struct PlantCase {
   model::TsModel model;  // identified
   double noise_mm;       // the plant's sensor noise (sigma)
   std::function<std::unique_ptr<testing::LoopPlant>()> make;
+  // The plant's own T-S model where it has one (the rig's: the seed's), to print its gain
+  // at each sine's frequency beside the identified model's.
+  std::optional<model::TsModel> truth = std::nullopt;
 };
 
 struct ReferenceCase {
   std::string name;
   Reference reference;
+  double frequency_Hz = 0.0;  // a sine's F; 0 for the multilevel reference
 };
 
 // The lead-in: the reference's first value held for kLeadIn_s before it, so that every
@@ -162,15 +178,53 @@ std::vector<ReferenceCase> References(const PlantCase& plant) {
         plant.name.c_str(), frequency_Hz, gain_mm_per_V,
         std::abs(model::FrequencyResponse(frozen, 0.0)), amplitude_mm, reach_V,
         reach_V * gain_mm_per_V, plant.noise_mm);
+    if (plant.truth) {
+      const double w = 2.0 * std::numbers::pi * frequency_Hz;
+      const std::complex<double> g_model = model::FrequencyResponse(frozen, w);
+      const std::complex<double> g_plant =
+          model::FrequencyResponse(model::FrozenModelAt(*plant.truth, 2.5), w);
+      std::printf(
+          "%-9s sine %g Hz: the plant's own gain there %.4g mm/V, %.1f degrees from "
+          "the model's phase\n",
+          plant.name.c_str(), frequency_Hz, std::abs(g_plant),
+          std::arg(g_plant / g_model) * 180.0 / std::numbers::pi);
+    }
     const double duration_s = std::max(600.0, 6.0 / frequency_Hz);
     char spec[160];
     std::snprintf(spec, sizeof spec, "sine:level=%.4f,amplitude=%.5f,frequency=%g,duration=%g",
                   steady.DeflectionAt(2.5), amplitude_mm, frequency_Hz, duration_s);
     char name[32];
     std::snprintf(name, sizeof name, "sine %g Hz", frequency_Hz);
-    cases.push_back({name, WithLeadIn(control::ReferenceFromProtocol(spec, 0.1))});
+    cases.push_back({name, WithLeadIn(control::ReferenceFromProtocol(spec, 0.1)), frequency_Hz});
   }
   return cases;
+}
+
+// A series x(t) split into its mean, its component at F (amplitude, projected on cos and
+// sin: least squares over whole periods) and the RMS of what is left.
+struct AtFrequency {
+  double mean = 0.0, amplitude = 0.0, rest_rms = 0.0;
+};
+
+AtFrequency SplitAt(const std::vector<double>& t_s, const std::vector<double>& x,
+                    double frequency_Hz) {
+  AtFrequency split;
+  const double n = static_cast<double>(x.size());
+  for (double v : x) split.mean += v / n;
+  const double w = 2.0 * std::numbers::pi * frequency_Hz;
+  double c = 0.0, s = 0.0;
+  for (size_t k = 0; k < x.size(); ++k) {
+    c += 2.0 / n * (x[k] - split.mean) * std::cos(w * t_s[k]);
+    s += 2.0 / n * (x[k] - split.mean) * std::sin(w * t_s[k]);
+  }
+  split.amplitude = std::hypot(c, s);
+  double rest = 0.0;
+  for (size_t k = 0; k < x.size(); ++k) {
+    const double left = x[k] - split.mean - c * std::cos(w * t_s[k]) - s * std::sin(w * t_s[k]);
+    rest += left * left / n;
+  }
+  split.rest_rms = std::sqrt(rest);
+  return split;
 }
 
 double StandardDeviation(const std::vector<double>& values) {
@@ -204,16 +258,39 @@ void WritePlot(const std::string& path, const testing::LoopResult& predictive,
 }  // namespace
 }  // namespace flexid
 
-int main(int argc, char** argv) {
+namespace {
+
+int Run(int argc, char** argv) {
   using namespace flexid;
   std::string svg_path;
   uint64_t ts_seed = 7;
   bool ts_sweep = false;
+  // < 0: the controller's defaults (model/control/mpc.h)
+  double move_weight = -1.0, effort_weight = -1.0, replan_s = -1.0, mismatch_tau_s = -1.0;
   for (int i = 1; i < argc; ++i) {
     if (std::strcmp(argv[i], "--svg") == 0 && i + 1 < argc) {
       svg_path = argv[++i];
     } else if (std::strcmp(argv[i], "--ts-sweep") == 0) {
       ts_sweep = true;
+    } else if ((std::strcmp(argv[i], "--move-weight") == 0 ||
+                std::strcmp(argv[i], "--effort-weight") == 0 ||
+                std::strcmp(argv[i], "--replan") == 0 ||
+                std::strcmp(argv[i], "--mismatch-time-constant") == 0) &&
+               i + 1 < argc) {
+      // Checked here for a number >= 0; the controller checks the rest (MpcOptions::IsValid).
+      const char* option = argv[i];
+      const char* text = argv[++i];
+      char* end = nullptr;
+      const double value = std::strtod(text, &end);
+      if (end == text || *end != '\0' || !std::isfinite(value) || value < 0.0) {
+        std::fprintf(stderr, "control_bench: %s \"%s\": not a finite number >= 0\n", option, text);
+        return 2;
+      }
+      double* target = std::strcmp(option, "--move-weight") == 0     ? &move_weight
+                       : std::strcmp(option, "--effort-weight") == 0 ? &effort_weight
+                       : std::strcmp(option, "--replan") == 0        ? &replan_s
+                                                                     : &mismatch_tau_s;
+      *target = value;
     } else if (std::strcmp(argv[i], "--ts-seed") == 0 && i + 1 < argc) {
       const char* text = argv[++i];
       char* end = nullptr;
@@ -224,7 +301,10 @@ int main(int argc, char** argv) {
         return 2;
       }
     } else {
-      std::fprintf(stderr, "usage: control_bench [--svg PATH] [--ts-seed N] [--ts-sweep]\n");
+      std::fprintf(stderr,
+                   "usage: control_bench [--svg PATH] [--ts-seed N] [--ts-sweep] "
+                   "[--move-weight W] [--effort-weight W] [--replan S] "
+                   "[--mismatch-time-constant S]\n");
       return 2;
     }
   }
@@ -234,8 +314,8 @@ int main(int argc, char** argv) {
     const model::GlobalEstimate rig_model =
         model::IdentifyGlobalTs({RigRecording("square:level=2,period=220,cycles=2", 11),
                                  RigRecording("square:level=8,period=220,cycles=2", 12)});
-    plants.push_back(
-        {"rig", rig_model.model, kNoise_mm, [] { return std::make_unique<RigLoopPlant>(21); }});
+    plants.push_back({"rig", rig_model.model, kNoise_mm,
+                      [] { return std::make_unique<RigLoopPlant>(21); }, model::SeedTsModel()});
     std::printf("rig: model identified from 2 V and 8 V square waves: %s\n",
                 rig_model.structure.Describe().c_str());
   }
@@ -270,6 +350,10 @@ int main(int argc, char** argv) {
       for (int i = 0; i < 3; ++i) {
         ControllerOptions options;
         options.kind = kinds[i];
+        if (move_weight >= 0.0) options.mpc.move_weight = move_weight;
+        if (effort_weight >= 0.0) options.mpc.effort_weight = effort_weight;
+        if (replan_s >= 0.0) options.mpc.replan_s = replan_s;
+        if (mismatch_tau_s >= 0.0) options.mpc.disturbance_time_constant_s = mismatch_tau_s;
         Controller controller(plant.model, reference.reference, options);
         const std::unique_ptr<testing::LoopPlant> loop_plant = plant.make();
         results[i] = testing::RunLoop(controller, *loop_plant, kLeadIn_s);
@@ -279,6 +363,33 @@ int main(int argc, char** argv) {
                     100.0 * r.rmse_mm / spread, r.voltage_rms_V, r.charge_Vs,
                     r.peak_window_charge_Vs);
       }
+      if (reference.frequency_Hz > 0.0)
+        for (int i = 0; i < 3; ++i) {
+          const testing::LoopResult& r = results[i];
+          std::vector<double> t_s, error_mm, model_error_mm, voltage_V;
+          for (size_t k = 0; k < r.t_s.size(); ++k)
+            if (r.t_s[k] >= kLeadIn_s) {
+              t_s.push_back(r.t_s[k]);
+              error_mm.push_back(r.clean_mm[k] - r.reference_mm[k]);
+              model_error_mm.push_back(r.model_mm[k] - r.reference_mm[k]);
+              voltage_V.push_back(r.voltage_V[k]);
+            }
+          const AtFrequency e = SplitAt(t_s, error_mm, reference.frequency_Hz);
+          const AtFrequency u = SplitAt(t_s, voltage_V, reference.frequency_Hz);
+          std::printf(
+              "%-9s %-12s %-11s   error: mean %+.4f mm, at F %.4f mm RMS, rest %.4f mm RMS; "
+              "voltage: mean %.3f V, at F +-%.3f V, rest %.3f V RMS",
+              plant.name.c_str(), reference.name.c_str(),
+              model::control::ControllerKindName(kinds[i]), e.mean, e.amplitude / std::sqrt(2.0),
+              e.rest_rms, u.mean, u.amplitude, u.rest_rms);
+          // The controller's own model driven by the same voltages (not for the PI).
+          if (std::isfinite(model_error_mm.front())) {
+            const AtFrequency m = SplitAt(t_s, model_error_mm, reference.frequency_Hz);
+            std::printf("; its model's error: mean %+.4f mm, at F %.4f mm RMS", m.mean,
+                        m.amplitude / std::sqrt(2.0));
+          }
+          std::printf("\n");
+        }
       char line[160];
       std::snprintf(line, sizeof line, "%-9s %-12s predictive / PI RMSE = %.2f", plant.name.c_str(),
                     reference.name.c_str(), results[0].rmse_mm / results[1].rmse_mm);
@@ -293,4 +404,15 @@ int main(int argc, char** argv) {
       "\n%.0f s in all\n",
       std::chrono::duration<double>(std::chrono::steady_clock::now() - clock_start).count());
   return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  try {
+    return Run(argc, argv);
+  } catch (const std::exception& e) {  // an option the controller refuses, a failed fit
+    std::fprintf(stderr, "control_bench: %s\n", e.what());
+    return 2;
+  }
 }
