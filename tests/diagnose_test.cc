@@ -6,10 +6,12 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <fstream>
 #include <map>
 #include <sstream>
 #include <string>
+#include <vector>
 
 #include "model/core/errors.h"
 #include "model/core/model_file.h"
@@ -27,16 +29,40 @@ std::map<std::string, std::string> Answers() {
   return answers;
 }
 
+// A finding's rivals are the other candidates claimed in its round, each once, with the
+// held-out RMSE of its candidate report; the finding says how it was chosen among them.
+void ExpectRivalsAreTheRoundsOtherClaims(const model::Diagnosis& d, const std::string& file,
+                                         size_t* with_rivals) {
+  for (size_t round = 0; round < d.findings.size(); ++round) {
+    const model::Finding& f = d.findings[round];
+    std::vector<const model::CandidateReport*> others;
+    for (const model::CandidateReport& c : d.candidates)
+      if (c.claimed && c.round == static_cast<int>(round) && c.name != f.effect)
+        others.push_back(&c);
+    ASSERT_EQ(f.rivals.size(), others.size()) << file << " round " << round;
+    for (const model::Rival& r : f.rivals) {
+      const auto match = std::find_if(others.begin(), others.end(), [&](const auto* c) {
+        return c->name == r.effect && c->heldout_rmse_mm == r.heldout_rmse_mm;
+      });
+      EXPECT_NE(match, others.end()) << file << ": rival " << r.effect;
+    }
+    EXPECT_EQ(f.chosen_by.empty(), f.rivals.empty()) << file;
+    if (!f.rivals.empty()) ++*with_rivals;
+  }
+}
+
 TEST(DiagnoseConcealed, NamesEveryShippedRecordingsEffect) {
   const auto answers = Answers();
   ASSERT_EQ(answers.size(), 8u);
   const model::TsModel trusted = model::AsTsModel(
       model::ReadModelFile(std::string(FLEXID_SOURCE_DIR) + "/examples/seed-8V.json"));
+  size_t with_rivals = 0;
   for (const auto& [file, effect] : answers) {
     const model::Recording rec =
         model::ReadRecordingCsv(std::string(FLEXID_SOURCE_DIR) + "/examples/concealed/" + file);
     const model::Diagnosis d = model::Diagnose(rec, trusted);
     EXPECT_EQ(d.verdict, effect) << file;
+    ExpectRivalsAreTheRoundsOtherClaims(d, file, &with_rivals);
     if (effect == "none") {
       EXPECT_TRUE(d.findings.empty()) << file;
       continue;
@@ -64,6 +90,9 @@ TEST(DiagnoseConcealed, NamesEveryShippedRecordingsEffect) {
               std::string::npos)
         << d.findings[0].explanation;
   }
+  // Six of the eight are claimed by more than one effect against the seed's model: the
+  // rivals are no formality.
+  EXPECT_GE(with_rivals, 4u);
 }
 
 // What the final model leaves on the held-out samples beyond 3 times the noise is reported

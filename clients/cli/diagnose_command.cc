@@ -93,6 +93,20 @@ std::string Params(const json& item) {
   return text;
 }
 
+// "sensor_drift (held-out RMSE 0.0714 mm); chosen by ..." from a finding's "rivals" and
+// "chosen_by"; empty without rivals.
+std::string Rivals(const json& finding) {
+  std::string text;
+  for (const json& r : finding.value("rivals", json::array())) {
+    if (!text.empty()) text += ", ";
+    text += Text(r, "effect") + " (held-out RMSE " +
+            FormatNumber(NumberOr(r, "heldout_rmse_mm"), 3) + " mm)";
+  }
+  if (!text.empty() && !Text(finding, "chosen_by").empty())
+    text += "; this one chosen by " + Text(finding, "chosen_by");
+  return text;
+}
+
 // The human form of a diagnosis (model::DiagnosisToJson); `subject` names the recording
 // and `against` the trusted model (empty: the baseline was identified on the recording).
 void PrintHuman(const std::string& subject, const std::string& against, const json& d) {
@@ -118,6 +132,8 @@ void PrintHuman(const std::string& subject, const std::string& against, const js
     std::printf("    held-out RMSE: %s -> %s mm\n",
                 FormatNumber(NumberOr(f, "heldout_rmse_before_mm"), 3).c_str(),
                 FormatNumber(NumberOr(f, "heldout_rmse_after_mm"), 3).c_str());
+    if (const std::string rivals = Rivals(f); !rivals.empty())
+      std::printf("    also claimed on its own: %s\n", rivals.c_str());
   }
   for (const json& m : d.value("unexplained", json::array())) {
     std::printf("  unexplained misfit: %s\n", Text(m, "explanation").c_str());

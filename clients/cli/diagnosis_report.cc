@@ -143,9 +143,17 @@ std::string Headline(const model::Diagnosis& diagnosis) {
   const bool found = !diagnosis.findings.empty();
   html += found ? "<section class=\"verdict\">\n" : "<section class=\"verdict none\">\n";
   html += "<h2>Verdict: " + Html(diagnosis.verdict) + "</h2>\n";
-  for (const auto& finding : diagnosis.findings)
+  for (const auto& finding : diagnosis.findings) {
     html +=
         "<p><strong>" + Html(finding.effect) + "</strong>: " + Html(finding.explanation) + "</p>\n";
+    if (finding.rivals.empty()) continue;
+    std::string rivals;
+    for (const model::Rival& r : finding.rivals)
+      rivals += (rivals.empty() ? "" : ", ") + Html(r.effect) + " (held-out RMSE " +
+                FormatNumber(r.heldout_rmse_mm, 3) + " mm)";
+    html += "<p>Also claimed on its own against the same model: " + rivals + "; " +
+            Html(finding.effect) + " chosen by " + Html(finding.chosen_by) + ".</p>\n";
+  }
   if (!found)
     html +=
         "<p>No effect of the catalogue passed all three tests (training likelihood ratio, "

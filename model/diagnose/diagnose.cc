@@ -8,6 +8,7 @@
 #include <cmath>
 #include <limits>
 #include <memory>
+#include <numeric>
 #include <optional>
 #include <stdexcept>
 #include <tuple>
@@ -580,16 +581,28 @@ struct Diagnoser {
     // simulator's recordings without a model: by the information criterion 33 of 48
     // effects were named together with the lab plant's; by the held-out error 16 of 24 on
     // the simulator's alone, by every sample 18, with no clean recording flagged.)
-    size_t best = 0;
     auto score = [&](const std::pair<CandidateReport, FitResult>& c) {
       if (trusted_model) return c.first.bic;
       const std::vector<double> r = Residual(rec.deflection_mm, c.second.prediction);
       return SumSquares(r, data.train) + SumSquares(r, data.heldout);
     };
-    for (size_t i = 1; i < claimed.size(); ++i)
-      if (score(claimed[i]) < score(claimed[best])) best = i;
+    std::vector<size_t> order(claimed.size());
+    std::iota(order.begin(), order.end(), size_t{0});
+    std::vector<double> scores;
+    for (const auto& c : claimed) scores.push_back(score(c));
+    // Stable: among equal scores, the candidate tried first wins.
+    std::stable_sort(order.begin(), order.end(),
+                     [&](size_t a, size_t b) { return scores[a] < scores[b]; });
+    const size_t best = order.front();
     auto& [report, fit] = claimed[best];
     Finding finding;
+    // The runners-up: a lab reads that the data hold them too.
+    for (size_t i = 1; i < order.size(); ++i)
+      finding.rivals.push_back(
+          {claimed[order[i]].first.name, claimed[order[i]].first.heldout_rmse_mm});
+    if (!finding.rivals.empty())
+      finding.chosen_by = trusted_model ? "the lowest information criterion on the training samples"
+                                        : "the least squared error over every sample";
     finding.effect = report.name;
     finding.params = report.params;
     finding.heldout_rmse_before_mm = RmsOver(current_r, data.heldout);

@@ -150,6 +150,13 @@ struct CandidateReport {
   int round = 0;       // 0: added to the baseline; 1: added to the first finding, ...
 };
 
+// Another effect that passed every test on its own against the same model as a finding,
+// and was not chosen: the data hold it too, less well by the round's choice.
+struct Rival {
+  std::string effect;
+  double heldout_rmse_mm = 0.0;  // the model with it, on the held-out samples
+};
+
 struct Finding {
   std::string effect;
   std::string explanation;  // plain words, with numbers
@@ -158,6 +165,10 @@ struct Finding {
   double heldout_rmse_before_mm = 0.0;
   double heldout_rmse_after_mm = 0.0;
   Effect model;  // the fitted effect, for the model file's augmentations
+  // The other candidates claimed in the same round, best first by the round's choice
+  // (chosen_by), with what each leaves on the held-out samples.
+  std::vector<Rival> rivals;
+  std::string chosen_by;  // how the finding was chosen among them (empty without rivals)
 };
 
 // What a free fit absorbed that the physics chain does not predict (no trusted model).

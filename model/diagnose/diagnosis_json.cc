@@ -50,6 +50,11 @@ nlohmann::json DiagnosisToJson(const Diagnosis& d) {
                         {"heldout_rmse_before_mm", Finite(f.heldout_rmse_before_mm)},
                         {"heldout_rmse_after_mm", Finite(f.heldout_rmse_after_mm)}};
     ParamsToJson(f.params, &j);
+    nlohmann::json rivals = nlohmann::json::array();
+    for (const Rival& r : f.rivals)
+      rivals.push_back({{"effect", r.effect}, {"heldout_rmse_mm", Finite(r.heldout_rmse_mm)}});
+    j["rivals"] = std::move(rivals);
+    if (!f.chosen_by.empty()) j["chosen_by"] = f.chosen_by;
     findings.push_back(std::move(j));
   }
   out["findings"] = std::move(findings);
