@@ -222,9 +222,13 @@ double FirstState(const Vec& x) {
   }
 }
 
+// y is __restrict: the state x has its address taken (AddMarkovTerm), and without the
+// promise that y does not alias it every store to y[k] made the loop reload x from memory
+// (a one-rule simulation 16 % slower).
 template <int N>
 void RunUniform(const TsModel& model, double dt_s, std::span<const double> u,
-                const SimulationOptions& options, double* y, std::vector<double>* memberships) {
+                const SimulationOptions& options, double* __restrict y,
+                std::vector<double>* memberships) {
   using Vec = typename UniformEntry<N>::Vec;
   const size_t m = model.rules.size();
   const double u_before = options.start_in_steady_state ? u.front() : options.initial_voltage_V;
