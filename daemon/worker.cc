@@ -319,6 +319,14 @@ void Service::ReportDiagnosis(const DiagnosisResult& result) {
     alert.magnitude_mm = f.value("heldout_rmse_before_mm", 0.0);
     alert.threshold_mm = f.value("heldout_rmse_after_mm", 0.0);
     alert.text = TrialWords(result.trial_ids) + ": " + f.value("explanation", "");
+    // The other effects the data hold too (Finding::rivals), by name: the verdict may be a
+    // narrow choice.
+    std::string rivals;
+    if (const auto r = f.find("rivals"); r != f.end() && r->is_array())
+      for (const nlohmann::json& rival : *r)
+        if (rival.is_object() && rival.contains("effect") && rival["effect"].is_string())
+          rivals += (rivals.empty() ? "" : ", ") + rival["effect"].get<std::string>();
+    if (!rivals.empty()) alert.text += " (also claimed on its own: " + rivals + ")";
     Raise(&it->second, {alert});
   }
   // A diagnosis the policy asked for: nobody to answer; what came of it is an alert.

@@ -231,8 +231,16 @@ TEST_F(DaemonEndToEnd, RecordsIdentifiesPredictsAndFlagsBackRelaxation) {
             0.5 * found["findings"][0]["heldout_rmse_before_mm"].get<double>());
   listener_->Pump(300ms);
   bool named = false;
-  for (const auto& a : listener_->alerts)
-    named = named || (a.kind == "back_relaxation" && a.text.rfind("trial ", 0) == 0);
+  // The effects the finding's rivals name are in its alert, and only they.
+  const nlohmann::json rivals = found["findings"][0].value("rivals", nlohmann::json::array());
+  for (const auto& a : listener_->alerts) {
+    if (a.kind != "back_relaxation" || a.text.rfind("trial ", 0) != 0) continue;
+    named = true;
+    EXPECT_EQ(a.text.find("also claimed on its own") != std::string::npos, !rivals.empty())
+        << a.text;
+    for (const auto& r : rivals)
+      EXPECT_NE(a.text.find(r["effect"].get<std::string>()), std::string::npos) << a.text;
+  }
   EXPECT_TRUE(named) << "no alert names the diagnosed effect";
   // Bad arguments are refused with the argument named.
   const auto bad = listener_->Call("diagnose", {{"actuator", "S1"}, {"trial", "x"}}, 10s);
