@@ -17,6 +17,7 @@
 #include "model/core/model_file.h"
 #include "model/core/presets.h"
 #include "model/core/recording.h"
+#include "model/diagnose/diagnose_fit.h"
 
 namespace flexid {
 namespace {
@@ -151,6 +152,47 @@ TEST(DiagnoseCatalogue, AugmentationsRoundTripAndBadOnesAreNamed) {
   EXPECT_THROW(
       model::EffectFromAugmentation({"cycle_degradation", {{"loss", 0.2}, {"exponent", -1.0}}}),
       model::InputError);
+}
+
+// A fit's simulations are reused only when every input is the same: the model's numbers,
+// the drive and the premise. A stale hit would give an effect's fit the previous point's
+// prediction.
+TEST(DiagnoseFit, TheSimulationMemoReusesOnlyAnIdenticalSimulation) {
+  model::Recording rec;
+  for (int k = 0; k < 400; ++k) {
+    rec.t_s.push_back(0.1 * k);
+    rec.voltage_V.push_back(k < 50 ? 0.0 : k < 200 ? 2.0 : k < 300 ? 6.0 : 4.0);
+    rec.deflection_mm.push_back(0.0);
+  }
+  model::diagnosis::Data data;
+  data.rec = &rec;
+  const model::TsModel seed = model::SeedTsModel();
+  model::diagnosis::SimulationMemo memo;
+  const std::vector<double>& u = rec.voltage_V;
+  const std::vector<double> y = memo.Simulate(data, seed, u, {});
+  EXPECT_EQ(y, data.SimulateFromRest(seed, u));
+  EXPECT_EQ(memo.Simulate(data, seed, u, {}), y);
+  EXPECT_EQ(memo.simulations(), 1u);
+
+  std::vector<double> moved = u;  // one sample of the drive
+  moved[250] = 5.9;
+  EXPECT_EQ(memo.Simulate(data, seed, moved, {}), data.SimulateFromRest(seed, moved));
+  EXPECT_EQ(memo.simulations(), 2u);
+  model::TsModel other = seed;  // one coefficient of one rule
+  other.rules.back().tf.den.back() *= 1.0 + 1e-12;
+  EXPECT_EQ(memo.Simulate(data, other, u, {}), data.SimulateFromRest(other, u));
+  EXPECT_EQ(memo.simulations(), 3u);
+  // The same drive scheduled on another premise (a wear effect's applied voltage).
+  std::vector<double> worn = u;
+  for (double& v : worn) v *= 0.9;
+  EXPECT_EQ(memo.Simulate(data, seed, worn, u), data.SimulateFromRest(seed, worn, u));
+  EXPECT_EQ(memo.simulations(), 4u);
+  EXPECT_NE(memo.Simulate(data, seed, worn, u), memo.Simulate(data, seed, worn, {}));
+  EXPECT_EQ(memo.simulations(), 5u);
+  // At most kEntries are kept: the first is made again.
+  static_assert(model::diagnosis::SimulationMemo::kEntries == 3);
+  EXPECT_EQ(memo.Simulate(data, seed, u, {}), y);
+  EXPECT_EQ(memo.simulations(), 6u);
 }
 
 TEST(DiagnoseInput, ShortOrConstantRecordingsAreRefused) {

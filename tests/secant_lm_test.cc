@@ -7,7 +7,9 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <functional>
 #include <limits>
+#include <set>
 #include <stdexcept>
 #include <vector>
 
@@ -90,6 +92,43 @@ TEST(SecantLm, FollowsACurvedValley) {
       SolveSecantLm(rosenbrock, 2, {-1.2, 1.0}, {-kInf, -kInf}, {kInf, kInf}, options);
   EXPECT_NEAR(r.x[0], 1.0, 1e-4);
   EXPECT_NEAR(r.x[1], 1.0, 1e-4);
+}
+
+// Each evaluation of the identification's residuals is a simulation of the whole
+// recording: no point is evaluated twice within a solve. On the valley and on the bounded
+// decay, steps fail after secant updates and the Jacobian is differenced again at the same
+// point, where a column was already differenced by the cycle.
+TEST(SecantLm, EvaluatesNoPointTwice) {
+  auto rosenbrock = [](const double* x, double* r) {
+    r[0] = 10.0 * (x[1] - x[0] * x[0]);
+    r[1] = 1.0 - x[0];
+    return true;
+  };
+  const Decay decay(3.0, 2.5, 0.7);
+  struct Case {
+    std::function<bool(const double*, double*)> residuals;
+    size_t count;
+    std::vector<double> start, lower, upper;
+  };
+  const std::vector<Case> cases = {
+      {rosenbrock, 2, {-1.2, 1.0}, {-kInf, -kInf}, {kInf, kInf}},
+      {decay, decay.t.size(), {1.0, 0.0, 0.0}, {-kInf, -kInf, -kInf}, {kInf, kInf, kInf}},
+      {decay, decay.t.size(), {1.0, 0.0, 0.0}, {-kInf, -kInf, -kInf}, {kInf, kInf, 0.5}}};
+  for (size_t c = 0; c < cases.size(); ++c) {
+    std::set<std::vector<double>> seen;
+    int repeats = 0;
+    const size_t n = cases[c].start.size();
+    auto counted = [&](const double* x, double* r) {
+      repeats += seen.insert(std::vector<double>(x, x + n)).second ? 0 : 1;
+      return cases[c].residuals(x, r);
+    };
+    SecantLmOptions options;
+    options.max_iterations = 200;
+    const SecantLmResult r = SolveSecantLm(counted, cases[c].count, cases[c].start, cases[c].lower,
+                                           cases[c].upper, options);
+    EXPECT_EQ(repeats, 0) << "case " << c << ": " << r.evaluations << " evaluations";
+    EXPECT_EQ(static_cast<size_t>(r.evaluations), seen.size() + static_cast<size_t>(repeats));
+  }
 }
 
 }  // namespace

@@ -10,7 +10,9 @@
 // point, and one coordinate direction whose difference refreshes one column (cycling over
 // the parameters, only when the step barely moves along it, as in the reference). The
 // whole Jacobian is differenced again when a step fails on a Jacobian that is no longer
-// fresh, since the failure may be the estimate's and not the model's.
+// fresh, since the failure may be the estimate's and not the model's. No point is
+// evaluated twice: a column differenced at the current point is kept (a second m x p
+// matrix) until the point moves.
 //
 // Bounds: the trial point is projected onto the box, and the step taken is the projected
 // one. A parameter with equal bounds is held. Scaling: the damping is mu * diag(J^T J)

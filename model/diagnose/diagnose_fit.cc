@@ -92,8 +92,42 @@ std::vector<double> NuisanceFreeResidual(const Data& data, std::span<const doubl
   return r;
 }
 
-std::vector<double> Predict(const Data& data, const Augmented& a,
-                            const std::vector<double>* cache) {
+namespace {
+
+// Every number of a model, its enumerations included: two models with the same numbers
+// simulate alike.
+std::vector<double> ModelNumbers(const TsModel& model) {
+  std::vector<double> n = {static_cast<double>(model.scheduling),
+                           static_cast<double>(model.realisation), model.rest_band_V,
+                           model.scheduling_delay_s, static_cast<double>(model.rules.size())};
+  for (const LocalModel& rule : model.rules) {
+    n.insert(n.end(),
+             {rule.level_V, rule.tf.delay_s, static_cast<double>(rule.tf.num.size()),
+              static_cast<double>(rule.tf.den.size()), static_cast<double>(rule.membership.shape),
+              static_cast<double>(rule.membership.params.size())});
+    n.insert(n.end(), rule.tf.num.begin(), rule.tf.num.end());
+    n.insert(n.end(), rule.tf.den.begin(), rule.tf.den.end());
+    n.insert(n.end(), rule.membership.params.begin(), rule.membership.params.end());
+  }
+  return n;
+}
+
+}  // namespace
+
+std::vector<double> SimulationMemo::Simulate(const Data& data, const TsModel& model,
+                                             const std::vector<double>& u,
+                                             const std::vector<double>& premise) {
+  std::vector<double> numbers = ModelNumbers(model);
+  for (auto it = entries_.rbegin(); it != entries_.rend(); ++it)
+    if (it->model == numbers && it->u == u && it->premise == premise) return it->y;
+  if (entries_.size() == kEntries) entries_.erase(entries_.begin());
+  entries_.push_back({std::move(numbers), u, premise, data.SimulateFromRest(model, u, premise)});
+  ++simulations_;
+  return entries_.back().y;
+}
+
+std::vector<double> Predict(const Data& data, const Augmented& a, const std::vector<double>* cache,
+                            SimulationMemo* memo) {
   const Recording& rec = *data.rec;
   bool any_input = false;
   for (const Effect& e : a.effects) any_input |= IsInputEffect(e.kind);
@@ -115,7 +149,8 @@ std::vector<double> Predict(const Data& data, const Augmented& a,
   if (!any_input && cache && !a.refit) {
     y = *cache;  // the baseline with the given effects
   } else {
-    y = data.SimulateFromRest(a.Baseline(), u, premise);
+    y = memo ? memo->Simulate(data, a.Baseline(), u, premise)
+             : data.SimulateFromRest(a.Baseline(), u, premise);
     for (const Effect& e : data.given) output_effect(e, &y);
   }
   for (const Effect& e : a.effects) output_effect(e, &y);
@@ -231,7 +266,10 @@ class EffectCost {
       std::fill(residuals, residuals + data_.train.size(), 1e6);
       return true;
     }
-    const std::vector<double> y = Predict(data_, model, baseline_);
+    // Ceres evaluates a step's cost, then, the step taken, the residuals again at the
+    // same point as the base of the Jacobian's differences: the memo keeps both to one
+    // simulation.
+    const std::vector<double> y = Predict(data_, model, baseline_, &memo_);
     const std::vector<double> projected = NuisanceFreeResidual(data_, y);
     for (size_t i = 0; i < data_.train.size(); ++i) {
       const double r = projected[data_.train[i]];
@@ -244,7 +282,8 @@ class EffectCost {
   const Data& data_;
   const FitProblem& problem_;
   const std::vector<double>* baseline_;
-  double max_fall_back_ = 0.0;  // of a refitted baseline's rules; 0: not refitted
+  double max_fall_back_ = 0.0;   // of a refitted baseline's rules; 0: not refitted
+  mutable SimulationMemo memo_;  // operator() is const for Ceres; one fit, one thread
 };
 
 // Every combination of the parameters' starting values, each clamped to its bounds.

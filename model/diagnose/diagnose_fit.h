@@ -115,10 +115,34 @@ struct FitResult {
 // samples (Data::edges_train): what every fit and training test works on.
 std::vector<double> NuisanceFreeResidual(const Data& data, std::span<const double> predicted);
 
+// The last few simulations of one fit, by their exact inputs (every number of the model,
+// the drive and the premise). A parameter that does not move the drive leaves the
+// simulation as it was: a saturation's slope while its onset is above every sample, a
+// dead zone's threshold moved by a central difference between two plateaus. On the HASEL
+// mixed recording's diagnosis, a tenth of every sample simulated was such a repeat.
+class SimulationMemo {
+ public:
+  // The simulation of `model` under u with `premise` (Data::SimulateFromRest), from the
+  // memo or made and kept.
+  std::vector<double> Simulate(const Data& data, const TsModel& model, const std::vector<double>& u,
+                               const std::vector<double>& premise);
+  size_t simulations() const { return simulations_; }  // made, not found
+
+  static constexpr size_t kEntries = 3;
+
+ private:
+  struct Entry {
+    std::vector<double> model, u, premise, y;
+  };
+  std::vector<Entry> entries_;  // the most recent last
+  size_t simulations_ = 0;
+};
+
 // `cache`: the baseline's own prediction, if known (output-side effects then need no
-// simulation).
+// simulation). `memo`: simulations to reuse and keep (one fit's).
 std::vector<double> Predict(const Data& data, const Augmented& a,
-                            const std::vector<double>* cache = nullptr);
+                            const std::vector<double>* cache = nullptr,
+                            SimulationMemo* memo = nullptr);
 
 // Bounds and starts of a refitted baseline's coefficients: free, from their values.
 std::vector<ParameterSpec> CoefficientSpecs(const TsModel& model);
