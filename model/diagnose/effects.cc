@@ -216,6 +216,8 @@ double MemorylessInput(const Effect& e, double v) {
 struct Degradation {
   explicit Degradation(const Effect& e)
       : log_keep(std::log(std::max(1e-9, 1.0 - e.params[0]))), exponent(e.params[1]) {}
+  Degradation(double log_keep_in, double exponent_in)
+      : log_keep(log_keep_in), exponent(exponent_in) {}
   double Gain(double q_Vs, double scale_Vs) const {
     const double x = q_Vs / scale_Vs;
     return std::exp(log_keep * (exponent == 1.0 ? x : std::pow(x, exponent)));
@@ -299,6 +301,9 @@ AugmentedStreamingSimulator::AugmentedStreamingSimulator(const TsModel& model,
       throw InputError("effect " + name + ": a live prediction needs its " +
                        EffectScaleName(e.kind) + " (> 0; flexid diagnose writes it)");
   }
+  for (size_t i = 0; i < effects_.size(); ++i)
+    if (effects_[i].kind == EffectKind::kCycleDegradation)
+      states_[i].log_keep = Degradation(effects_[i]).log_keep;
 }
 
 double AugmentedStreamingSimulator::StepInput(const Effect& e, State* state, double t_s,
@@ -308,7 +313,7 @@ double AugmentedStreamingSimulator::StepInput(const Effect& e, State* state, dou
   state->started = true;
   state->last_in = voltage_V;
   state->last_t_s = t_s;
-  return voltage_V * Degradation(e).Gain(state->charge_Vs, e.scale);
+  return voltage_V * Degradation(state->log_keep, e.params[1]).Gain(state->charge_Vs, e.scale);
 }
 
 double AugmentedStreamingSimulator::StepOutput(const Effect& e, State* state, double t_s,

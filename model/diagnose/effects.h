@@ -115,6 +115,7 @@ class AugmentedStreamingSimulator {
     double t0_s = 0.0, last_t_s = 0.0;
     double last_in = 0.0;    // the effect's input at the previous sample (V or mm)
     double charge_Vs = 0.0;  // cycle_degradation: Q up to this sample
+    double log_keep = 0.0;   // cycle_degradation: log(1 - loss), once for the effect
     double slow_mm = 0.0;    // back_relaxation, creep: the slow follower s
     double friction = 0.0;   // hysteresis: h
   };
